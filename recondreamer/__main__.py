@@ -1,0 +1,5 @@
+import sys
+
+from recondreamer.cli import main
+
+sys.exit(main())
