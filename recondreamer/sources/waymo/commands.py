@@ -1,0 +1,41 @@
+"""Sub-command ``recondreamer convert-waymo``: one Waymo segment to a scene directory."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "convert-waymo",
+        help="convert a Waymo Open Dataset v1 segment (.tfrecord) into a scene directory",
+        description="Stream a Waymo Open Dataset v1 segment (no TensorFlow needed) and write one camera's "
+        "frames, calibration, ego poses, tracked 3D boxes, TOP LiDAR points and map polylines as a scene "
+        "directory (JPEGs kept as they are). The world frame is the ego frame of the first selected frame.",
+    )
+    parser.add_argument("tfrecord", metavar="SEGMENT.tfrecord", help="Waymo Open Dataset v1 segment file")
+    parser.add_argument("--out", required=True, metavar="DIR", help="scene directory to write (replaced atomically)")
+    parser.add_argument(
+        "--start", type=int, default=None, help="first frame index to convert, 0-based (default: 0)"
+    )
+    parser.add_argument(
+        "--end", type=int, default=None, help="last frame index to convert, inclusive (default: the last frame)"
+    )
+    parser.add_argument(
+        "--camera",
+        default="FRONT",
+        choices=["FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT", "SIDE_RIGHT"],
+        help="which camera to convert (default: FRONT)",
+    )
+    parser.set_defaults(func=_convert)
+
+
+def _convert(args: argparse.Namespace) -> int:
+    from recondreamer.sources.waymo.convert import convert_waymo
+
+    out = convert_waymo(args.tfrecord, args.out, start=args.start, end=args.end, camera=args.camera)
+    log.info("wrote %s", out)
+    return 0
