@@ -74,3 +74,20 @@ def test_suite_config_errors(tmp_path):
         load_suite(tmp_path / "bad.yaml")
     with pytest.raises(RecondreamerError, match="cannot be read"):
         load_suite(tmp_path / "missing.yaml")
+
+
+def test_suite_previews_drawn_once_per_segment(tmp_path, monkeypatch):
+    import recondreamer.sources.synthetic.config as config_module
+    from recondreamer.sources.synthetic.suite import write_previews
+
+    tiny = config_module.PRESETS["quick"].__class__(width=48, height=32, frames=2, lidar_beams=8, lidar_azimuths=90, novel_views=False)
+    monkeypatch.setitem(config_module.PRESETS, "quick", tiny)
+    file = _config(tmp_path, {"seg-a": 1}, 1, 500)
+    with pytest.raises(RecondreamerError, match="scene.json"):
+        write_previews(file)  # segments not built yet
+    run_suite(file)
+    (sheet,) = write_previews(file)
+    assert sheet == tmp_path / "results" / "previews" / "seg-a.png"
+    assert Image.open(sheet).size[0] > 48
+    stamp = sheet.stat().st_mtime_ns
+    assert write_previews(file) == [sheet] and sheet.stat().st_mtime_ns == stamp  # current: not redrawn

@@ -39,6 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     suite.add_argument("--only", choices=("segments", "corpus"), help="build only the evaluation segments or only the corpus (default: both)")
     suite.add_argument("--jobs", type=int, default=1, help="scenes rendered in parallel processes (default: 1)")
     suite.add_argument("--force", action="store_true", help="rebuild scenes even when they are already current")
+    suite.add_argument("--previews", action="store_true", help="also draw a contact sheet of every evaluation segment to <results_dir>/previews/<name>.png (redrawn only when missing or older than its scene)")
     suite.set_defaults(func=run_synth_suite)
 
     preview = subparsers.add_parser(
@@ -77,8 +78,13 @@ def run_synth(args: argparse.Namespace) -> int:
 def run_synth_suite(args: argparse.Namespace) -> int:
     from recondreamer.sources.synthetic.suite import run_suite
 
+    from recondreamer.sources.synthetic.suite import write_previews
+
     built = run_suite(args.config, only=args.only, jobs=args.jobs, force=args.force)
     log.info("synthetic suite done: %d scene(s) built", len(built))
+    if args.previews:
+        for sheet in write_previews(args.config):
+            log.info("preview: %s", sheet)
     return 0
 
 

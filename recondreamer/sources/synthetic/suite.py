@@ -137,3 +137,26 @@ def run_suite(config_path: str | Path, only: str | None = None, jobs: int = 1, f
         if jobs > 1:
             pool.shutdown(cancel_futures=True)
     return todo
+
+
+def write_previews(config_path: str | Path) -> list[Path]:
+    """Draw ``<results_dir>/previews/<name>.png`` for every evaluation segment of the suite.
+
+    A sheet newer than its scene's ``scene.json`` is kept; returns the paths of all sheets.
+    """
+    from recondreamer.sources.synthetic.preview import contact_sheet
+
+    config = yaml.safe_load(Path(config_path).read_text())
+    preview_dir = Path(config["results_dir"]) / "previews"
+    sheets = []
+    for job in load_suite(config_path):
+        if job.group != "segments":
+            continue
+        sheet = preview_dir / f"{job.name}.png"
+        scene_file = job.out / "scene.json"
+        if not scene_file.is_file():
+            raise RecondreamerError(f"{scene_file}: missing; build the segment before drawing its preview")
+        if not sheet.is_file() or sheet.stat().st_mtime < scene_file.stat().st_mtime:
+            contact_sheet(job.out, sheet)
+        sheets.append(sheet)
+    return sheets
