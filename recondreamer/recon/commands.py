@@ -1,0 +1,170 @@
+"""Sub-commands of the reconstruction stage: ``train-recon`` and ``render``."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from recondreamer.recon.config import MODEL_TYPES, PRESETS
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    train = subparsers.add_parser(
+        "train-recon",
+        help="train a Gaussian-splatting reconstruction (street, pvg, deformable, s3) of one scene",
+        description="Train one reconstruction backbone on a scene directory. The run directory gets "
+        "checkpoint.pt (resume), model.pt (final), snapshots/step_N.pt, train.log and run.json; "
+        "re-running the same command after a kill resumes from the last checkpoint.",
+    )
+    train.add_argument(
+        "--scene",
+        required=True,
+        metavar="DIR",
+        help="scene directory (docs/scene-format.md)",
+    )
+    train.add_argument(
+        "--model", required=True, choices=MODEL_TYPES, help="reconstruction backbone"
+    )
+    train.add_argument(
+        "--out", required=True, metavar="RUN", help="run directory to create or resume"
+    )
+    train.add_argument(
+        "--preset",
+        default="default",
+        choices=PRESETS,
+        help="size preset: quick (tests), default (CPU, synthetic scenes), paper (GPU, 50k iterations)",
+    )
+    train.add_argument(
+        "--iterations",
+        type=int,
+        default=None,
+        help="override the preset's number of iterations",
+    )
+    train.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="random seed (initialisation, view order, splits)",
+    )
+    train.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch CPU threads (default: torch's choice)",
+    )
+    train.add_argument(
+        "--backend",
+        default="auto",
+        choices=("auto", "torch", "cpu", "gsplat"),
+        help="rasteriser backend (auto = gsplat on CUDA, else the C++ CPU kernel)",
+    )
+    train.add_argument(
+        "--device",
+        default="cpu",
+        help="torch device of the model, e.g. cpu or cuda (cuda uses the gsplat backend)",
+    )
+    train.set_defaults(func=run_train)
+
+    render = subparsers.add_parser(
+        "render",
+        help="render a trained reconstruction along a trajectory",
+        description="Render every frame of a trajectory (camera of frame t at the time of frame t) "
+        "into DIR/{t:03d}.png and DIR/{t:03d}_depth.npy (expected depth, metres); DIR is written "
+        "atomically.",
+    )
+    render.add_argument(
+        "--run", required=True, metavar="RUN", help="run directory of train-recon"
+    )
+    render.add_argument(
+        "--trajectory",
+        default="original",
+        help="original, shift@Y (Y metres to the left), lane_change or file:PATH (T,4,4 poses)",
+    )
+    render.add_argument(
+        "--out", required=True, metavar="DIR", help="output directory of the frames"
+    )
+    render.add_argument(
+        "--checkpoint",
+        default=None,
+        metavar="FILE",
+        help="model file to render instead of RUN/model.pt (a snapshot or checkpoint)",
+    )
+    render.add_argument(
+        "--scene",
+        default=None,
+        metavar="DIR",
+        help="scene directory (default: the one recorded in the run)",
+    )
+    render.add_argument(
+        "--threads",
+        type=int,
+        default=None,
+        help="torch CPU threads (default: torch's choice)",
+    )
+    render.set_defaults(func=run_render)
+
+
+def run_train(args: argparse.Namespace) -> int:
+    import torch
+
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.recon.config import make_config
+    from recondreamer.recon.trainer import train_scene
+    from recondreamer.scene import load_scene
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    scene = load_scene(args.scene)
+    overrides = {"seed": args.seed, "backend": args.backend, "device": args.device}
+    if args.iterations is not None:
+        if args.iterations < 1:
+            raise RecondreamerError(
+                f"--iterations must be at least 1, got {args.iterations}"
+            )
+        overrides["iterations"] = args.iterations
+    config = make_config(args.model, args.preset, **overrides)
+    model = train_scene(scene, config, args.out)
+    log.info(
+        "done: %s with %d Gaussians in %s", args.model, len(model.gaussians), args.out
+    )
+    return 0
+
+
+def run_render(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    import torch
+
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.recon.checkpoint import RUN_JSON, load_model
+    from recondreamer.recon.render import render_frames, write_frames
+    from recondreamer.scene import load_scene
+    from recondreamer.scene.trajectories import trajectory_cam_to_world
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    model = load_model(args.checkpoint or args.run)
+    scene_dir = args.scene
+    if scene_dir is None:
+        run_json = Path(args.run) / RUN_JSON
+        if not run_json.is_file():
+            raise RecondreamerError(f"{run_json}: missing; pass --scene DIR")
+        scene_dir = json.loads(run_json.read_text()).get("scene_path")
+        if not scene_dir:
+            raise RecondreamerError(
+                f"{run_json}: records no scene path; pass --scene DIR"
+            )
+    scene = load_scene(scene_dir)
+    try:
+        poses = trajectory_cam_to_world(
+            scene.cam_to_world, scene.ego_to_world, args.trajectory
+        )
+    except ValueError as error:
+        raise RecondreamerError(f"--trajectory: {error}") from None
+    images, depths = render_frames(model, scene, poses)
+    write_frames(args.out, images, depths)
+    log.info("rendered %d frames of %s to %s", len(images), args.trajectory, args.out)
+    return 0

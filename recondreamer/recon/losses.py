@@ -1,0 +1,85 @@
+"""Reconstruction losses: L1 RGB + SSIM (kornia) + LiDAR depth + sky opacity.
+
+``view_loss`` is the per-view objective of the paper: ``l1 RGB + l2 Depth + l3 SSIM`` for
+original data, and depth-free for views without depth (generated novel-trajectory frames).
+"""
+
+from __future__ import annotations
+
+import kornia
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from recondreamer.recon.config import LossConfig
+
+
+def image_tensor(
+    image,
+) -> torch.Tensor:  # (H,W,3) uint8 array -> (H,W,3) float in [0,1]
+    return torch.from_numpy(np.array(image, dtype=np.float32)) / 255.0
+
+
+def ssim_loss(pred: torch.Tensor, target: torch.Tensor, window: int) -> torch.Tensor:
+    """1 - mean SSIM of two (H,W,3) images in [0,1]."""
+    ssim = kornia.metrics.ssim(
+        pred.permute(2, 0, 1)[None], target.permute(2, 0, 1)[None], window
+    )
+    return 1.0 - ssim.mean()
+
+
+def depth_loss(
+    pred: torch.Tensor, alpha: torch.Tensor, target: torch.Tensor, min_alpha: float
+) -> torch.Tensor | None:
+    """Mean relative L1 |d - d_lidar| / d_lidar over pixels with a LiDAR point and alpha >= min_alpha.
+
+    ``pred`` is the rendered expected depth (H,W); relative error keeps near and far points
+    comparable. None when no pixel qualifies.
+    """
+    mask = (target > 0) & (alpha.detach() >= min_alpha)
+    if not bool(mask.any()):
+        return None
+    return ((pred[mask] - target[mask]).abs() / target[mask]).mean()
+
+
+def sky_loss(alpha: torch.Tensor, sky_mask: torch.Tensor) -> torch.Tensor:
+    """BCE of the accumulated opacity against "not sky": Gaussians must not cover the sky."""
+    return F.binary_cross_entropy(alpha.clamp(1e-5, 1 - 1e-5), (~sky_mask).float())
+
+
+def view_loss(
+    render: dict, image: torch.Tensor, depth, sky_mask, config: LossConfig
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """Total loss of one rendered view and its parts (floats, for logging).
+
+    ``image`` (H,W,3) float; ``depth`` (H,W) float or None (no depth loss at all);
+    ``sky_mask`` (H,W) bool or None.
+    """
+    rgb = render["rgb"]
+    l1 = (rgb - image).abs().mean()
+    d_ssim = ssim_loss(rgb, image, config.ssim_window)
+    total = config.rgb * l1 + config.ssim * d_ssim
+    parts = {"l1": float(l1.detach()), "ssim": float(d_ssim.detach())}
+    if depth is not None and config.depth > 0:
+        term = depth_loss(
+            render["depth"],
+            render["alpha"],
+            torch.from_numpy(np.asarray(depth, dtype=np.float32)).to(rgb.device),
+            config.depth_min_alpha,
+        )
+        if term is not None:
+            total = total + config.depth * term
+            parts["depth"] = float(term.detach())
+    if sky_mask is not None and config.sky > 0:
+        term = sky_loss(
+            render["alpha"],
+            torch.from_numpy(np.asarray(sky_mask, dtype=bool)).to(rgb.device),
+        )
+        total = total + config.sky * term
+        parts["sky"] = float(term.detach())
+    return total, parts
+
+
+def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
+    mse = float(((pred.detach() - target) ** 2).mean())
+    return 10.0 * torch.log10(torch.tensor(1.0 / max(mse, 1e-10))).item()

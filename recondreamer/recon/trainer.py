@@ -1,0 +1,337 @@
+"""One trainer for every backbone: weighted view sampling, losses, density control, checkpoints.
+
+``train_scene`` is the entry point: it builds (or resumes) a model for a scene and trains it in
+a run directory, writing snapshots at configured steps, an atomic checkpoint every
+``checkpoint_every`` steps, the final ``model.pt`` and progress lines in ``train.log``.
+
+Resume is exact: the checkpoint holds the model, Adam moments, density statistics and both
+random generators (view sampling and split sampling), so a resumed run takes the same steps as
+an uninterrupted one. Results are bit-identical when the rasteriser is deterministic (the
+reference backend; the fast kernel is deterministic when its gradient reduction is).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recondreamer.errors import CheckpointError
+from recondreamer.io import write_json_atomic
+from recondreamer.recon.base import GaussianSceneModel
+from recondreamer.recon.checkpoint import (
+    CHECKPOINT_NAME,
+    MODEL_NAME,
+    RUN_JSON,
+    TRAIN_LOG,
+    model_from_record,
+    model_record,
+    read_record,
+    save_record,
+    snapshot_path,
+)
+from recondreamer.recon.config import ReconConfig, to_dict
+from recondreamer.recon.data import TrainingSet, downsample_targets
+from recondreamer.recon.density import (
+    DensityController,
+    build_optimizer,
+    update_learning_rates,
+)
+from recondreamer.recon.losses import image_tensor, psnr, view_loss
+from recondreamer.recon.models import MODEL_CLASSES
+
+logger = logging.getLogger("recondreamer.recon")
+
+# Called before every step with the trainer (e.g. PDUS refreshes the novel views every S steps).
+StepCallback = Callable[["Trainer"], None]
+
+
+def format_duration(seconds: float) -> str:
+    seconds = round(seconds)
+    return (
+        f"{seconds // 3600}h{seconds % 3600 // 60:02d}m{seconds % 60:02d}s"
+        if seconds >= 3600
+        else f"{seconds // 60}m{seconds % 60:02d}s"
+    )
+
+
+class Trainer:
+    """Trains ``model`` on ``training_set`` for ``config.iterations`` steps."""
+
+    def __init__(
+        self,
+        model: GaussianSceneModel,
+        training_set: TrainingSet,
+        config: ReconConfig,
+        run_dir: str | Path | None = None,
+        scene_path: str | None = None,
+        callbacks: Iterable[StepCallback] = (),
+    ) -> None:
+        self.model = model.to(config.device)
+        self.training_set = training_set
+        self.config = config
+        self.run_dir = Path(run_dir) if run_dir is not None else None
+        self.scene_path = scene_path
+        self.callbacks = list(callbacks)
+        self.optimizer = build_optimizer(model, config.optim)
+        self.density = DensityController(
+            config.densify, config.iterations, len(model.gaussians), config.device
+        )
+        self.rng = np.random.default_rng(config.seed)
+        self.generator = torch.Generator().manual_seed(config.seed)
+        self.step = 0
+        self.warmup_steps = int(config.net.warmup_fraction * config.iterations)
+        self.last_psnr = float("nan")
+
+    # --- one step -------------------------------------------------------------------------
+    def train_step(self) -> dict[str, float]:
+        config = self.config
+        data = self.training_set
+        view = data.sample(self.rng)
+        static = self.step < self.warmup_steps
+        image, depth, sky_mask, K = (
+            image_tensor(view.image).to(config.device),
+            view.depth,
+            view.sky_mask,
+            data.K,
+        )
+        if (
+            self.step < config.coarse_fraction * config.iterations
+            and config.coarse_factor > 1
+        ):
+            image, depth, sky_mask, K = downsample_targets(
+                image, depth, sky_mask, K, config.coarse_factor
+            )
+        height, width = image.shape[:2]
+        self.model.train()
+        render = self.model.render(
+            view.cam_to_world,
+            view.timestamp,
+            K,
+            width,
+            height,
+            backend=config.backend,
+            static=static,
+        )
+        render["means2d"].retain_grad()
+        loss, parts = view_loss(render, image, depth, sky_mask, config.loss)
+        regularization = None if static else self.model.regularization()
+        if regularization is not None:
+            loss = loss + regularization
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        if render["means2d"].grad is not None:
+            self.density.accumulate(
+                render["means2d"].grad, render["radii"], width, height
+            )
+        update_learning_rates(
+            self.optimizer, self.model, config.optim, self.step, config.iterations
+        )
+        self.optimizer.step()
+        self.step += 1
+        self.density.step(self.step, self.model, self.optimizer, self.generator)
+        gaussians = self.model.gaussians
+        if (
+            self.step % config.net.sh_degree_every == 0
+            and int(gaussians.active_sh_degree) < config.net.sh_degree
+        ):
+            gaussians.active_sh_degree += 1
+        return {
+            "loss": float(loss.detach()),
+            "psnr": psnr(render["rgb"], image),
+            **parts,
+        }
+
+    # --- the loop -------------------------------------------------------------------------
+    def run(self) -> GaussianSceneModel:
+        config = self.config
+        total = config.iterations
+        started, first_step = time.monotonic(), self.step
+        window: list[dict[str, float]] = []
+        file_handler = self._attach_log()
+        try:
+            if self.step >= total:
+                logger.info("already trained %d/%d steps", self.step, total)
+            while self.step < total:
+                for callback in self.callbacks:
+                    callback(self)
+                window.append(self.train_step())
+                if self.step % config.log_every == 0 or self.step == total:
+                    self._log_progress(window, started, first_step)
+                    window = []
+                if self.run_dir is not None:
+                    if self.step in config.snapshot_steps:
+                        save_record(
+                            snapshot_path(self.run_dir, self.step),
+                            self._record("snapshot"),
+                        )
+                    if self.step % config.checkpoint_every == 0 and self.step < total:
+                        self.save_checkpoint()
+            if self.run_dir is not None:
+                self.save_checkpoint()
+                save_record(self.run_dir / MODEL_NAME, self._record("model"))
+                self._write_run_json("done", time.monotonic() - started)
+        finally:
+            if file_handler is not None:
+                logger.removeHandler(file_handler)
+                file_handler.close()
+        return self.model
+
+    def _log_progress(
+        self, window: list[dict[str, float]], started: float, first_step: int
+    ) -> None:
+        done = self.step - first_step
+        elapsed = time.monotonic() - started
+        eta = elapsed / max(done, 1) * (self.config.iterations - self.step)
+        mean = {
+            key: float(np.mean([w[key] for w in window if key in w]))
+            for key in window[-1]
+        }
+        self.last_psnr = mean["psnr"]
+        extras = " ".join(
+            f"{key} {mean[key]:.4f}"
+            for key in ("l1", "ssim", "depth", "sky")
+            if key in mean
+        )
+        logger.info(
+            "step %d/%d loss %.4f psnr %.2f gaussians %d %s | %.3f s/it eta %s",
+            self.step,
+            self.config.iterations,
+            mean["loss"],
+            mean["psnr"],
+            len(self.model.gaussians),
+            extras,
+            elapsed / max(done, 1),
+            format_duration(eta),
+        )
+
+    def _attach_log(self) -> logging.Handler | None:
+        if self.run_dir is None:
+            return None
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        handler = logging.FileHandler(self.run_dir / TRAIN_LOG)
+        handler.setFormatter(
+            logging.Formatter("%(asctime)s %(message)s", "%Y-%m-%d %H:%M:%S")
+        )
+        logger.addHandler(handler)
+        if logger.getEffectiveLevel() > logging.INFO:
+            logger.setLevel(logging.INFO)
+        return handler
+
+    # --- persistence ----------------------------------------------------------------------
+    def _record(self, kind: str) -> dict:
+        return model_record(kind, self.model, self.config, self.step, self.scene_path)
+
+    def save_checkpoint(self) -> None:
+        record = self._record("checkpoint")
+        record["optimizer"] = self.optimizer.state_dict()
+        record["density"] = self.density.state_dict()
+        record["rng"] = {
+            "numpy": self.rng.bit_generator.state,
+            "torch": self.generator.get_state(),
+        }
+        save_record(self.run_dir / CHECKPOINT_NAME, record)
+        self._write_run_json("running", None)
+
+    def load_checkpoint(self, record: dict) -> None:
+        """Restore optimiser, density statistics, generators and step (the model comes from the record)."""
+        self.optimizer.load_state_dict(record["optimizer"])
+        self.density.load_state_dict(record["density"])
+        self.rng.bit_generator.state = record["rng"]["numpy"]
+        self.generator.set_state(record["rng"]["torch"])
+        self.step = int(record["step"])
+
+    def _write_run_json(self, status: str, wall_time: float | None) -> None:
+        info = {
+            "status": status,
+            "model_type": self.model.model_type,
+            "scene_id": self.model.spec().get("scene_id", ""),
+            "scene_path": self.scene_path,
+            "step": self.step,
+            "iterations": self.config.iterations,
+            "num_gaussians": len(self.model.gaussians),
+            "training_sources": self.training_set.sources(),
+            "last_logged_psnr": None
+            if np.isnan(self.last_psnr)
+            else round(self.last_psnr, 3),
+            "wall_time_s": None if wall_time is None else round(wall_time, 2),
+            "config": to_dict(self.config),
+        }
+        write_json_atomic(self.run_dir / RUN_JSON, info)
+
+
+def train_scene(
+    scene,
+    config: ReconConfig,
+    run_dir: str | Path | None,
+    training_set: TrainingSet | None = None,
+    callbacks: Iterable[StepCallback] = (),
+    resume: bool = True,
+) -> GaussianSceneModel:
+    """Train ``config.model`` on ``scene`` (a loaded Scene); resume from ``RUN/checkpoint.pt`` if present.
+
+    ``training_set`` defaults to the scene's original frames. A checkpoint of a different
+    model, scene or config in ``run_dir`` is an error rather than silently overwritten.
+    """
+    training_set = (
+        training_set if training_set is not None else TrainingSet.from_scene(scene)
+    )
+    # Absolute, so run.json names the scene wherever the run is used from.
+    scene_path = (
+        str(Path(scene.path).resolve()) if getattr(scene, "path", None) else None
+    )
+    checkpoint = Path(run_dir) / CHECKPOINT_NAME if run_dir is not None else None
+    if resume and checkpoint is not None and checkpoint.exists():
+        record = read_record(checkpoint)
+        mismatch = [
+            what
+            for what, ours, theirs in (
+                ("model type", config.model, record["model_type"]),
+                ("scene id", scene.scene_id, record["scene_id"]),
+                ("config", to_dict(config), record["config"]),
+            )
+            if _normalized(ours) != _normalized(theirs)
+        ]
+        if mismatch or record.get("kind") != "checkpoint":
+            raise CheckpointError(
+                f"{checkpoint}: belongs to a different run (differs in {', '.join(mismatch) or 'kind'}); "
+                "choose another --out directory or delete the old one"
+            )
+        model = model_from_record(record)
+        trainer = Trainer(model, training_set, config, run_dir, scene_path, callbacks)
+        trainer.load_checkpoint(record)
+        logger.info(
+            "resuming %s on %s from step %d", config.model, scene.scene_id, trainer.step
+        )
+    else:
+        torch.manual_seed(config.seed)
+        model = MODEL_CLASSES[config.model].from_scene(
+            scene, config, np.random.default_rng(config.seed)
+        )
+        trainer = Trainer(model, training_set, config, run_dir, scene_path, callbacks)
+        logger.info(
+            "training %s on %s: %d views %s, %d initial Gaussians, %d iterations",
+            config.model,
+            scene.scene_id,
+            len(training_set),
+            training_set.sources(),
+            len(model.gaussians),
+            config.iterations,
+        )
+        if run_dir is not None:
+            Path(run_dir).mkdir(parents=True, exist_ok=True)
+            trainer._write_run_json("running", None)
+    return trainer.run()
+
+
+def _normalized(value):
+    """Tuples and lists compare equal (a config read back from a checkpoint has lists)."""
+    if isinstance(value, dict):
+        return {key: _normalized(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_normalized(item) for item in value]
+    return value
