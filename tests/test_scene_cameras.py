@@ -80,3 +80,37 @@ def test_zero_distortion_is_pinhole():
     np.testing.assert_array_equal(
         project_points(points, K, np.eye(4), np.zeros(5))[0], project_points(points, K, np.eye(4))[0]
     )
+
+
+def test_rasterizer_intrinsics_put_a_splat_on_the_scene_pixel():
+    """A tiny Gaussian lands on the pixel that the scene's projection convention names."""
+    import torch
+
+    from recondreamer.scene.cameras import pixel_indices, rasterizer_intrinsics
+    from recondreamer.splat import rasterize
+
+    K = np.array([[40.0, 0.0, 15.5], [0.0, 40.0, 11.5], [0.0, 0.0, 1.0]])
+    for point in ([0.3, -0.2, 5.0], [-0.61, 0.37, 4.0]):
+        uv, _ = project_points(np.array([point]), K, np.eye(4))
+        column, row = pixel_indices(uv)
+        out = rasterize(
+            torch.tensor([point], dtype=torch.float64),
+            torch.tensor([[1.0, 0.0, 0.0, 0.0]], dtype=torch.float64),
+            torch.full((1, 3), 0.004, dtype=torch.float64),
+            torch.tensor([0.9], dtype=torch.float64),
+            torch.ones(1, 3, dtype=torch.float64),
+            torch.eye(4, dtype=torch.float64),
+            torch.as_tensor(rasterizer_intrinsics(K)),
+            32,
+            24,
+            backend="torch",
+        )
+        peak = int(out["alpha"].argmax())
+        assert (peak // 32, peak % 32) == (int(row[0]), int(column[0]))
+
+
+def test_pixel_indices_round_to_the_nearest_centre_and_reject_nan():
+    from recondreamer.scene.cameras import pixel_indices
+
+    columns, rows = pixel_indices(np.array([[0.49, -0.49], [0.51, 2.5], [np.nan, np.nan]]))
+    assert columns.tolist() == [0, 1, -1] and rows.tolist() == [0, 3, -1]

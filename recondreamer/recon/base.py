@@ -125,8 +125,12 @@ class GaussianSceneModel(nn.Module, abc.ABC):
         ``visible`` (N,) of the rasteriser for density control."""
         from recondreamer.splat import rasterize
 
+        from recondreamer.scene.cameras import rasterizer_intrinsics
+
         cam_to_world = as_float_tensor(cam_to_world, self.device)
-        K = as_float_tensor(K, self.device)
+        # K is in the scene's convention (pixel centres at integers); the rasterizer and the sky
+        # rays put pixel centres at integer + 0.5.
+        K = rasterizer_intrinsics(as_float_tensor(K, self.device))
         g = self.gaussians_at(self.normalized_time(timestamp), static=static)
         out = rasterize(
             g["means"],

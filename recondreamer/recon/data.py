@@ -19,7 +19,7 @@ import torch
 import torch.nn.functional as F
 
 from recondreamer.errors import RecondreamerError
-from recondreamer.scene.cameras import project_points, world_to_camera
+from recondreamer.scene.cameras import pixel_indices, project_points, world_to_camera
 
 ORIGINAL = "original"
 
@@ -54,8 +54,7 @@ def lidar_depth_map(
             np.asarray(points_world, dtype=np.float64), K, world_to_camera(cam_to_world)
         )
         front = z > 0.1
-        u = np.floor(np.where(front, uv[:, 0], -1.0)).astype(np.int64)
-        v = np.floor(np.where(front, uv[:, 1], -1.0)).astype(np.int64)
+        u, v = pixel_indices(np.where(front[:, None], uv, -1.0))
         keep = front & (u >= 0) & (u < width) & (v >= 0) & (v < height)
         np.minimum.at(depth, (v[keep], u[keep]), z[keep])
     depth[~np.isfinite(depth)] = 0.0

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from recondreamer.scene.cameras import project_points, world_to_camera
+from recondreamer.scene.cameras import pixel_indices, project_points, world_to_camera
 
 
 @dataclass
@@ -50,8 +50,7 @@ def colored_lidar_points(scene, frames: list[int] | None = None) -> ScenePoints:
             continue
         uv, z = project_points(lidar, scene.K, world_to_camera(scene.cam_to_world[t]))
         front = z > 0.1
-        u = np.floor(np.where(front, uv[:, 0], -1.0)).astype(np.int64)
-        v = np.floor(np.where(front, uv[:, 1], -1.0)).astype(np.int64)
+        u, v = pixel_indices(np.where(front[:, None], uv, -1.0))
         seen = front & (u >= 0) & (u < scene.width) & (v >= 0) & (v < scene.height)
         image = scene.image(t)
         points.append(lidar[seen])

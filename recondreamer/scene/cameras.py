@@ -65,3 +65,24 @@ def project_points(
     uv = homogeneous @ K[:2, :].T  # (N,2)
     uv[~in_front] = np.nan
     return uv, z
+
+
+def pixel_indices(uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (N,2) -> (N,), (N,) int64
+    """Column and row of the pixel containing each projected point (pixel centres at integers).
+
+    NaN coordinates (points behind the camera) map to -1, outside every image.
+    """
+    index = np.floor(np.nan_to_num(uv, nan=-1.0) + 0.5).astype(np.int64)
+    return index[:, 0], index[:, 1]
+
+
+def rasterizer_intrinsics(K):  # (3,3) -> (3,3), numpy array or torch tensor
+    """Intrinsics for code that puts pixel centres at integer + 0.5 (``recondreamer.splat``, gsplat).
+
+    Scene intrinsics follow OpenCV (top-left pixel centre at (0, 0)); moving the principal point
+    by half a pixel makes both conventions sample the same rays.
+    """
+    shifted = K.clone() if hasattr(K, "clone") else np.array(K, dtype=np.float64)
+    shifted[0, 2] += 0.5
+    shifted[1, 2] += 0.5
+    return shifted
