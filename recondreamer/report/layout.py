@@ -1,0 +1,110 @@
+"""Names and places of the experiment's runs: one source of truth for the workflow and the tables.
+
+The Snakemake rules (``workflow/rules/common.smk``) import these helpers to name their outputs,
+and the table builder uses the same helpers to find the per-run metric files, so a run id can
+never mean one thing to the workflow and another to the tables.
+
+Layout below ``results_dir``::
+
+    scenes/<segment>/                       scene directory (synthetic or converted Waymo)
+    runs/<segment>/<run>/                   reconstruction run (train-recon / -recondreamer / -dd4d)
+    renders/<segment>/<run>/<trajectory>/   rendered frames 000.png ...
+    metrics/<segment>/<run>.json            'recondreamer evaluate' output (all trajectories)
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+BACKBONE_LABELS = {
+    "street": "Street Gaussians",
+    "pvg": "PVG",
+    "deformable": "Deformable-GS",
+    "s3": "S3Gaussian",
+}
+RESTORER_LABELS = {
+    "sd": "Stable Diffusion",
+    "svd": "Stable Video Diffusion",
+    "dd2": "DriveDreamer-2",
+    "dd2_mask": "DriveDreamer-2+Mask",
+}
+METHOD_KINDS = ("baseline", "dd4d", "recondreamer")
+
+_SHIFT = re.compile(r"^shift@(-?\d+(?:\.\d+)?)$")
+
+
+def format_stride(stride: float) -> str:
+    """Stride in metres as it appears in run ids and wildcards: one decimal at least (1.5, 6.0)."""
+    text = f"{float(stride):.2f}".rstrip("0")
+    return text + "0" if text.endswith(".") else text
+
+
+def trajectory_label(name: str) -> str:
+    """'shift@3' -> 'Lane Shift @ 3m', 'lane_change' -> 'Lane Change' (the paper's column names)."""
+    match = _SHIFT.match(name)
+    if match:
+        return f"Lane Shift @ {match.group(1)}m"
+    if name == "lane_change":
+        return "Lane Change"
+    return name
+
+
+def trajectory_shift(name: str) -> float | None:
+    """Lateral offset in metres of a constant-shift trajectory; None for the others."""
+    match = _SHIFT.match(name)
+    return float(match.group(1)) if match else None
+
+
+@dataclass(frozen=True)
+class Method:
+    """One reconstruction run kind of a segment: what a table row is made of."""
+
+    kind: str  # baseline | dd4d | recondreamer
+    backbone: str  # street | pvg | deformable | s3
+    restorer: str | None = None  # recondreamer only
+    stride: float | None = None  # recondreamer only, metres
+
+    def __post_init__(self) -> None:
+        if self.kind not in METHOD_KINDS:
+            raise ValueError(f"unknown method kind {self.kind!r}; expected one of {METHOD_KINDS}")
+        if (self.kind == "recondreamer") != (self.restorer is not None and self.stride is not None):
+            raise ValueError("a recondreamer method needs a restorer and a stride, other kinds neither")
+
+    @property
+    def run_id(self) -> str:
+        if self.kind == "recondreamer":
+            return f"recondreamer-{self.backbone}-{self.restorer}-stride{format_stride(self.stride)}"
+        return f"{self.kind}-{self.backbone}"
+
+    @property
+    def label(self) -> str:
+        backbone = BACKBONE_LABELS.get(self.backbone, self.backbone)
+        if self.kind == "baseline":
+            return backbone
+        if self.kind == "dd4d":
+            return f"DriveDreamer4D with {backbone}"
+        return f"ReconDreamer with {backbone}"
+
+    @classmethod
+    def from_run_id(cls, run_id: str) -> Method:
+        match = re.fullmatch(r"recondreamer-([a-z0-9]+)-([a-z0-9_]+)-stride(\d+(?:\.\d+)?)", run_id)
+        if match:
+            return cls("recondreamer", match.group(1), match.group(2), float(match.group(3)))
+        kind, _, backbone = run_id.partition("-")
+        if kind not in ("baseline", "dd4d") or not backbone:
+            raise ValueError(f"not a run id of this workflow: {run_id!r}")
+        return cls(kind, backbone)
+
+
+def run_dir(results_dir: str | Path, segment: str, run_id: str) -> Path:
+    return Path(results_dir) / "runs" / segment / run_id
+
+
+def render_dir(results_dir: str | Path, segment: str, run_id: str, trajectory: str) -> Path:
+    return Path(results_dir) / "renders" / segment / run_id / trajectory
+
+
+def metrics_file(results_dir: str | Path, segment: str, run_id: str) -> Path:
+    return Path(results_dir) / "metrics" / segment / f"{run_id}.json"

@@ -1,0 +1,234 @@
+# Helpers of every rule: paths, the experiment plan, config checks the schema cannot express.
+# Run ids and output paths come from recondreamer.report.layout, the same module the table
+# builder reads them with.
+
+import os
+
+from snakemake.exceptions import WorkflowError
+
+from recondreamer.report.layout import metrics_file, render_dir, run_dir
+from recondreamer.report.plan import ExperimentPlan
+
+RESULTS = config["results_dir"]
+EXPERIMENT = config["experiment"]
+TRAJECTORIES = list(EXPERIMENT["trajectories"])
+
+
+def results(*parts):
+    """A path below results_dir."""
+    return os.path.join(RESULTS, *parts)
+
+
+def log_file(rule_name, pattern):
+    return results("logs", rule_name, f"{pattern}.log")
+
+
+def benchmark_file(rule_name, pattern):
+    return results("benchmarks", rule_name, f"{pattern}.tsv")
+
+
+def parent(path, levels=1):
+    """The directory ``levels`` above ``path`` (params derived from inputs/outputs, not hard-coded)."""
+    for _ in range(levels):
+        path = os.path.dirname(path)
+    return path
+
+
+def option(flag, value):
+    """'--flag value', or '' when the config leaves the value to the command's default (null)."""
+    return "" if value is None else f"{flag} {value}"
+
+
+# ------------------------------------------------------------------------------------ checks
+
+
+def _check_config():
+    """Cross-key checks; each failure names the key and what is wrong (parse time, before any job)."""
+    problems = []
+    try:
+        plan = ExperimentPlan.from_config(config)
+    except ValueError as error:
+        raise WorkflowError(f"config: {error}")
+    if config["source"] == "synthetic":
+        corpus = config["synthetic"]["corpus"]
+        seeds = set(range(corpus["first_seed"], corpus["first_seed"] + corpus["num_scenes"]))
+        clash = sorted(seeds & set(config["synthetic"]["segments"].values()))
+        if clash:
+            problems.append(f"synthetic.corpus seeds overlap the segment seeds {clash}")
+    else:
+        waymo = config["waymo"]
+        missing = [
+            os.path.join(waymo["tfrecord_dir"], spec["file"])
+            for spec in waymo["segments"].values()
+            if not os.path.isfile(os.path.join(waymo["tfrecord_dir"], spec["file"]))
+        ]
+        if missing:
+            problems.append(
+                f"missing segment file(s) for source 'waymo' ({len(missing)} of {len(waymo['segments'])}): "
+                + ", ".join(missing)
+                + ". Download these Waymo Open Dataset v1 validation segments and place them in "
+                f"waymo.tfrecord_dir ({waymo['tfrecord_dir']}), or point waymo.tfrecord_dir at them."
+            )
+        for name, spec in waymo["segments"].items():
+            if spec.get("end") is not None and spec["end"] < spec.get("start", 0):
+                problems.append(f"waymo.segments.{name}: end {spec['end']} is before start {spec.get('start', 0)}")
+        if config["preference"]["judge"] == "automatic":
+            problems.append("preference.judge 'automatic' needs the true novel views of synthetic scenes; use 'people' or 'none' with source 'waymo'")
+    if config["preference"]["judge"] == "people":
+        if not config["preference"]["answers"]:
+            problems.append("preference.judge 'people' needs preference.answers (CSV files downloaded from the study page)")
+        problems += [f"preference.answers: file {path} not found" for path in config["preference"]["answers"] if not os.path.isfile(path)]
+    for key in ("detector", "lane_model", "fid_model"):
+        path = config["eval_models"][key]
+        if path is not None and not os.path.isfile(path):
+            problems.append(f"eval_models.{key}: file {path} not found")
+    if config["eval_models"]["holdout_scenes"] >= config["synthetic"]["corpus"]["num_scenes"]:
+        problems.append("eval_models.holdout_scenes must be smaller than synthetic.corpus.num_scenes")
+    if config["restorer"]["pair_corpus_scenes"] > config["synthetic"]["corpus"]["num_scenes"]:
+        problems.append("restorer.pair_corpus_scenes exceeds synthetic.corpus.num_scenes")
+    unshared = sorted(set(config["restorer"]["pair_segment_backbones"]) - set(plan.backbones))
+    if unshared:
+        problems.append(f"restorer.pair_segment_backbones {unshared} must be among experiment.recon_backbones (their baseline runs provide the pairs)")
+    if not config["restorer"]["pair_segment_backbones"] and not config["restorer"]["pair_corpus_scenes"]:
+        problems.append("no restoration pairs: set restorer.pair_segment_backbones or restorer.pair_corpus_scenes")
+    if config["report"]["qualitative_trajectory"] not in TRAJECTORIES:
+        problems.append(f"report.qualitative_trajectory {config['report']['qualitative_trajectory']!r} is not in experiment.trajectories")
+    if config["report"]["dd4d_backbone"] not in plan.dd4d_backbones:
+        problems.append(f"report.dd4d_backbone {config['report']['dd4d_backbone']!r} is not in experiment.dd4d_backbones")
+    if problems:
+        raise WorkflowError("invalid config:\n  - " + "\n  - ".join(problems))
+    return plan
+
+
+PLAN = _check_config()
+SEGMENTS = list(PLAN.segments)
+RUNS = PLAN.runs()
+CORPUS_SCENES = [f"corpus-{i:03d}" for i in range(config["synthetic"]["corpus"]["num_scenes"])]
+PAIR_CORPUS_SCENES = CORPUS_SCENES[: config["restorer"]["pair_corpus_scenes"]]
+WORLD_MODEL_OF = {"sd": "sd", "svd": "svd", "dd2": "dd2", "dd2_mask": "dd2"}  # dd2_mask fine-tunes the dd2 world model
+TABLES = [1, 2, 4, 5] if config["preference"]["judge"] == "none" else [1, 2, 3, 4, 5]
+
+
+wildcard_constraints:
+    segment="[A-Za-z0-9][A-Za-z0-9_.-]*",
+    corpus_scene=r"corpus-\d+",
+    backbone="street|pvg|deformable|s3",
+    restorer="sd|svd|dd2|dd2_mask",
+    arch="sd|svd|dd2",
+    stride=r"\d+\.\d+",
+    run=r"(baseline|dd4d)-(street|pvg|deformable|s3)|recondreamer-(street|pvg|deformable|s3)-(sd|svd|dd2|dd2_mask)-stride\d+\.\d+",
+
+
+# ------------------------------------------------------------------------------------ paths
+
+
+def scene_dir(segment):
+    return results("scenes", segment)
+
+
+def corpus_scene_dirs():
+    return [results("corpus", name) for name in CORPUS_SCENES]
+
+
+def run_model(segment, run_id):
+    """The final model file of a run: what the DAG tracks (the run directory keeps checkpoints for resume)."""
+    return str(run_dir(RESULTS, segment, run_id) / "model.pt")
+
+
+def render_dirs(segment, run_id):
+    return [str(render_dir(RESULTS, segment, run_id, t)) for t in TRAJECTORIES]
+
+
+def all_metrics_files():
+    return [str(metrics_file(RESULTS, s, m.run_id)) for s in SEGMENTS for m in RUNS]
+
+
+def eval_model_files():
+    """Trained evaluation models that the evaluation uses (those not replaced by a configured local file)."""
+    trained = {"detector": "vehicle_detector.pt", "lane_model": "lane_segmenter.pt", "fid_model": "fid_features.pt"}
+    return [results("eval_models", name) for key, name in trained.items() if config["eval_models"][key] is None]
+
+
+def win_rates_file():
+    judge = config["preference"]["judge"]
+    if judge == "automatic":
+        return results("preference", "judge.json")
+    if judge == "people":
+        return results("preference", "people.json")
+    return None
+
+
+def plan_arguments():
+    return " ".join(PLAN.to_arguments())
+
+
+def final_outputs():
+    outputs = [results("tables", f"table{n}.{suffix}") for n in TABLES for suffix in ("csv", "md", "tex", "html")]
+    outputs += plot_files()
+    outputs += [results("study"), results("benchmark_summary.html")]
+    return outputs
+
+
+def plot_files():
+    names = ["metric_vs_shift.png", "stride_curve.png", "restorer_bars.png"]
+    names += [f"qualitative_{s}.png" for s in SEGMENTS] + [f"pdus_{s}.png" for s in SEGMENTS]
+    return [results("plots", name) for name in names]
+
+
+# ------------------------------------------------------------------------------------ restorer
+
+
+def pair_dirs():
+    dirs = []
+    if config["restorer"]["pair_segment_backbones"]:
+        dirs += [results("pairs", "segments", s) for s in SEGMENTS]
+    dirs += [results("pairs", "corpus", c) for c in PAIR_CORPUS_SCENES]
+    return dirs
+
+
+# ------------------------------------------------------------------------------------ preference (table 3)
+
+
+def preference_pairs():
+    """(segment, trajectory, ReconDreamer render dir, opponent run id, opponent render dir) of table 3."""
+    ours = PLAN.preference_method().run_id
+    return [
+        (s, t, str(render_dir(RESULTS, s, ours, t)), versus, str(render_dir(RESULTS, s, versus, t)))
+        for s in SEGMENTS
+        for t in TRAJECTORIES
+        for versus in PLAN.preference_versus
+    ]
+
+
+def preference_render_dirs():
+    return sorted({d for _, _, a, _, b in preference_pairs() for d in (a, b)})
+
+
+# ------------------------------------------------------------------------------------ report
+
+TABLE_NAMES = {
+    1: "Table 1: method comparison",
+    2: "Table 2: versus DriveDreamer4D",
+    3: "Table 3: preference win rates",
+    4: "Table 4: restorer backbones",
+    5: "Table 5: PDUS strides",
+}
+
+
+def table_outputs():
+    outputs = []
+    for n in TABLES:
+        html = results("tables", f"table{n}.html")
+        labels = {"table": str(n), "format": "html"}
+        outputs.append(report(html, caption=f"../report/table{n}.rst", category="1. Tables", subcategory=TABLE_NAMES[n], labels=labels))
+        outputs += [results("tables", f"table{n}.{suffix}") for suffix in ("csv", "md", "tex")]
+        outputs.append(results("tables", f"table{n}_sources.csv"))
+    return outputs
+
+
+def figure(name, caption, subcategory, labels):
+    return report(results("plots", name), caption=f"../report/{caption}.rst", category="2. Figures", subcategory=subcategory, labels=labels)
+
+
+def qualitative_methods():
+    return [PLAN.baseline(PLAN.ablation_backbone), PLAN.dd4d(config["report"]["dd4d_backbone"]), PLAN.preference_method()]

@@ -1,0 +1,88 @@
+# Metrics of every run (NTA-IoU, NTL-IoU, FID; PSNR/SSIM against the true novel views of synthetic
+# scenes), the preference judge of table 3 and the study page for people.
+
+EVAL_OVERRIDES = " ".join(
+    option(flag, config["eval_models"][key]) for flag, key in (("--detector", "detector"), ("--lane-model", "lane_model"), ("--fid-model", "fid_model"))
+)
+
+
+rule evaluate:
+    input:
+        scene=results("scenes", "{segment}"),
+        renders=lambda wildcards: render_dirs(wildcards.segment, wildcards.run),
+        models=eval_model_files(),
+    output:
+        metrics=results("metrics", "{segment}", "{run}.json"),
+        features=results("metrics", "{segment}", "{run}.features.npz"),
+    params:
+        renders=lambda wildcards, input: " ".join(f"--renders {d} --trajectory {t}" for d, t in zip(input.renders, TRAJECTORIES)),
+        models=lambda wildcards, input: option("--models", parent(input.models[0]) if input.models else None),
+        overrides=EVAL_OVERRIDES,
+        min_lidar_points=config["evaluation"]["min_lidar_points"],
+        score_threshold=config["evaluation"]["score_threshold"],
+    threads: config["threads"]["evaluate"]
+    log:
+        log_file("evaluate", "{segment}/{run}"),
+    benchmark:
+        benchmark_file("evaluate", "{segment}/{run}")
+    shell:
+        "recondreamer evaluate --scene {input.scene} {params.renders} {params.models} {params.overrides} "
+        "--min-lidar-points {params.min_lidar_points} --score-threshold {params.score_threshold} "
+        "--out {output.metrics} --features-out {output.features} > {log} 2>&1"
+
+
+rule judge:
+    input:
+        scenes=[scene_dir(s) for s in SEGMENTS],
+        renders=preference_render_dirs(),
+    output:
+        results("preference", "judge.json"),
+    params:
+        clips=" ".join(
+            f"--clip {scene_dir(s)} {t} {PLAN.preference_method().run_id}={a} {versus}={b}"
+            for s, t, a, versus, b in preference_pairs()
+        ),
+        metric=config["preference"]["metric"],
+    log:
+        log_file("judge", "all"),
+    benchmark:
+        benchmark_file("judge", "all")
+    shell:
+        "recondreamer judge {params.clips} --metric {params.metric} --out {output} > {log} 2>&1"
+
+
+rule study_page:
+    input:
+        preference_render_dirs(),
+    output:
+        # Not tagged for the report: a directory (page + media) only fits a zip report, and
+        # 'snakemake --report results/report.html' must work; workflow.rst points to it.
+        directory(results("study")),
+    params:
+        clips=" ".join(
+            f"--clip {s} {t} {PLAN.preference_method().run_id}={a} {versus}={b}" for s, t, a, versus, b in preference_pairs()
+        ),
+        seed=config["preference"]["study_seed"],
+        fps=config["preference"]["study_fps"],
+        media=config["preference"]["study_format"],
+    log:
+        log_file("study_page", "all"),
+    benchmark:
+        benchmark_file("study_page", "all")
+    shell:
+        "recondreamer study-page {params.clips} --out {output} --seed {params.seed} --fps {params.fps} "
+        "--format {params.media} > {log} 2>&1"
+
+
+rule study_ingest:
+    input:
+        answers=config["preference"]["answers"],
+        study=results("study"),
+    output:
+        results("preference", "people.json"),
+    log:
+        log_file("study_ingest", "all"),
+    benchmark:
+        benchmark_file("study_ingest", "all")
+    shell:
+        "recondreamer study-ingest {input.answers} --placement {input.study}/placement.json --out {output} > {log} 2>&1"

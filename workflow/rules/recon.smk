@@ -1,0 +1,61 @@
+# Baseline reconstructions (one per segment and backbone), corpus reconstructions that only feed
+# the restoration pairs, and the renders of every evaluated trajectory of every run.
+
+RECON_OPTIONS = (
+    f"--preset {config['recon']['preset']} --seed {config['recon']['seed']} --backend {config['recon']['backend']} "
+    + option("--iterations", config["recon"]["iterations"])
+)
+
+
+rule train_baseline:
+    input:
+        scene=results("scenes", "{segment}"),
+    output:
+        results("runs", "{segment}", "baseline-{backbone}", "model.pt"),
+    params:
+        run=lambda wildcards: run_dir(RESULTS, wildcards.segment, f"baseline-{wildcards.backbone}"),
+        options=RECON_OPTIONS,
+    threads: config["threads"]["recon"]
+    log:
+        log_file("train_baseline", "{segment}/{backbone}"),
+    benchmark:
+        benchmark_file("train_baseline", "{segment}/{backbone}")
+    shell:
+        "recondreamer train-recon --scene {input.scene} --model {wildcards.backbone} --out {params.run} "
+        "{params.options} --threads {threads} > {log} 2>&1"
+
+
+rule train_corpus_recon:
+    input:
+        scene=results("corpus", "{corpus_scene}"),
+    output:
+        results("corpus_runs", "{corpus_scene}", "{backbone}", "model.pt"),
+    params:
+        run=lambda wildcards: results("corpus_runs", wildcards.corpus_scene, wildcards.backbone),
+        options=RECON_OPTIONS,
+    threads: config["threads"]["recon"]
+    log:
+        log_file("train_corpus_recon", "{corpus_scene}/{backbone}"),
+    benchmark:
+        benchmark_file("train_corpus_recon", "{corpus_scene}/{backbone}")
+    shell:
+        "recondreamer train-recon --scene {input.scene} --model {wildcards.backbone} --out {params.run} "
+        "{params.options} --threads {threads} > {log} 2>&1"
+
+
+rule render_trajectories:
+    input:
+        model=lambda wildcards: run_model(wildcards.segment, wildcards.run),
+        scene=results("scenes", "{segment}"),
+    output:
+        [directory(path) for path in expand(results("renders", "{{segment}}", "{{run}}", "{trajectory}"), trajectory=TRAJECTORIES)],
+    params:
+        run=lambda wildcards: run_dir(RESULTS, wildcards.segment, wildcards.run),
+        trajectories=TRAJECTORIES,
+    threads: config["threads"]["recon"]
+    log:
+        log_file("render_trajectories", "{segment}/{run}"),
+    benchmark:
+        benchmark_file("render_trajectories", "{segment}/{run}")
+    script:
+        "../scripts/render_trajectories.py"

@@ -1,0 +1,85 @@
+# The paper's five tables, the figures and the time per rule, all tagged for the Snakemake report.
+
+rule make_tables:
+    input:
+        metrics=all_metrics_files(),
+        win_rates=[path for path in [win_rates_file()] if path],
+    output:
+        table_outputs(),
+    params:
+        results=lambda wildcards, input: parent(input.metrics[0], 3),
+        out=lambda wildcards, output: parent(output[0]),
+        tables=" ".join(str(n) for n in TABLES),
+        win_rates=lambda wildcards, input: option("--win-rates", input.win_rates[0] if input.win_rates else None),
+        plan=plan_arguments(),
+    log:
+        log_file("make_tables", "all"),
+    benchmark:
+        benchmark_file("make_tables", "all")
+    shell:
+        "recondreamer make-tables --results {params.results} --out {params.out} --tables {params.tables} "
+        "{params.win_rates} {params.plan} > {log} 2>&1"
+
+
+rule make_plots:
+    input:
+        metrics=all_metrics_files(),
+        scenes=[scene_dir(s) for s in SEGMENTS],
+        renders=[
+            str(render_dir(RESULTS, s, m.run_id, config["report"]["qualitative_trajectory"])) for s in SEGMENTS for m in qualitative_methods()
+        ],
+    output:
+        figure("metric_vs_shift.png", "metric_vs_shift", "Metrics", {"figure": "metric vs shift"}),
+        figure("stride_curve.png", "stride_curve", "Metrics", {"figure": "stride curve"}),
+        figure("restorer_bars.png", "restorer_bars", "Metrics", {"figure": "restorer backbones"}),
+        [figure(f"qualitative_{s}.png", "qualitative", "Qualitative", {"segment": s}) for s in SEGMENTS],
+    params:
+        results=lambda wildcards, input: parent(input.metrics[0], 3),
+        out=lambda wildcards, output: parent(output[0]),
+        trajectory=config["report"]["qualitative_trajectory"],
+        frames=" ".join(str(f) for f in config["report"]["qualitative_frames"]),
+        dd4d=config["report"]["dd4d_backbone"],
+        plan=plan_arguments(),
+    log:
+        log_file("make_plots", "all"),
+    benchmark:
+        benchmark_file("make_plots", "all")
+    shell:
+        "recondreamer make-plots --results {params.results} --out {params.out} --qualitative-trajectory {params.trajectory} "
+        "--qualitative-frames {params.frames} --dd4d-backbone {params.dd4d} {params.plan} > {log} 2>&1"
+
+
+rule pdus_figure:
+    input:
+        lambda wildcards: run_model(wildcards.segment, PLAN.preference_method().run_id),
+    output:
+        figure("pdus_{segment}.png", "pdus", "PDUS progression", {"segment": "{segment}"}),
+    params:
+        run=lambda wildcards, input: parent(input[0]),
+    log:
+        log_file("pdus_figure", "{segment}"),
+    benchmark:
+        benchmark_file("pdus_figure", "{segment}")
+    shell:
+        "recondreamer pdus-figure --run {params.run} --out {output} > {log} 2>&1"
+
+
+rule benchmark_summary:
+    input:
+        rules.make_tables.output,
+        rules.make_plots.output,
+        [results("plots", f"pdus_{s}.png") for s in SEGMENTS],
+        results("study"),
+    output:
+        report(results("benchmark_summary.html"), caption="../report/benchmarks.rst", category="3. Compute", labels={"summary": "time per rule"}),
+        results("benchmark_summary.csv"),
+        results("benchmark_summary.md"),
+    params:
+        root=results("benchmarks"),
+        stem=lambda wildcards, output: os.path.splitext(output[0])[0],
+    log:
+        log_file("benchmark_summary", "all"),
+    benchmark:
+        benchmark_file("benchmark_summary", "all")
+    shell:
+        "recondreamer benchmark-summary {params.root} --out {params.stem} > {log} 2>&1"

@@ -1,0 +1,62 @@
+# Restoration pairs (renders of the original trajectory from under-trained snapshots, paired with
+# the ground truth; paper Fig. 3) and the DriveRestorer fine-tuning of each restorer backbone.
+
+
+rule make_pairs_segment:
+    input:
+        scene=results("scenes", "{segment}"),
+        runs=lambda wildcards: [run_model(wildcards.segment, f"baseline-{b}") for b in config["restorer"]["pair_segment_backbones"]],
+    output:
+        directory(results("pairs", "segments", "{segment}")),
+    params:
+        runs=lambda wildcards, input: " ".join(os.path.dirname(path) for path in input.runs),
+        stages=config["restorer"]["pair_stages"],
+    threads: config["threads"]["restorer"]
+    log:
+        log_file("make_pairs_segment", "{segment}"),
+    benchmark:
+        benchmark_file("make_pairs_segment", "{segment}")
+    shell:
+        "recondreamer make-pairs --run {params.runs} --scene {input.scene} --out {output} "
+        "--stages {params.stages} --threads {threads} > {log} 2>&1"
+
+
+rule make_pairs_corpus:
+    input:
+        scene=results("corpus", "{corpus_scene}"),
+        runs=lambda wildcards: [results("corpus_runs", wildcards.corpus_scene, b, "model.pt") for b in config["restorer"]["pair_corpus_backbones"]],
+    output:
+        directory(results("pairs", "corpus", "{corpus_scene}")),
+    params:
+        runs=lambda wildcards, input: " ".join(os.path.dirname(path) for path in input.runs),
+        stages=config["restorer"]["pair_stages"],
+    threads: config["threads"]["restorer"]
+    log:
+        log_file("make_pairs_corpus", "{corpus_scene}"),
+    benchmark:
+        benchmark_file("make_pairs_corpus", "{corpus_scene}")
+    shell:
+        "recondreamer make-pairs --run {params.runs} --scene {input.scene} --out {output} "
+        "--stages {params.stages} --threads {threads} > {log} 2>&1"
+
+
+rule train_restorer:
+    input:
+        world_model=lambda wildcards: results("models", f"world_model_{WORLD_MODEL_OF[wildcards.restorer]}.pt"),
+        pairs=pair_dirs(),
+    output:
+        results("models", "restorer_{restorer}.pt"),
+    params:
+        options=" ".join(
+            option(flag, config["restorer"][key])
+            for flag, key in (("--steps", "steps"), ("--batch-size", "batch_size"), ("--window", "window"), ("--seed", "seed"))
+        ),
+        mask=lambda wildcards: option("--mask-probability", config["restorer"]["mask_probability"]) if wildcards.restorer == "dd2_mask" else "",
+    threads: config["threads"]["restorer"]
+    log:
+        log_file("train_restorer", "{restorer}"),
+    benchmark:
+        benchmark_file("train_restorer", "{restorer}")
+    shell:
+        "recondreamer train-restorer --arch {wildcards.restorer} --world-model {input.world_model} "
+        "--pairs {input.pairs} --out {output} {params.options} {params.mask} --threads {threads} > {log} 2>&1"
