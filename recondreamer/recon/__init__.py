@@ -5,24 +5,28 @@ Public API: ``load_model(path)``, ``render_trajectory(model, scene, cam_to_world
 ``TrainingView``. See ``docs/reconstruction.md``.
 """
 
-from recondreamer.recon.base import GaussianSceneModel
-from recondreamer.recon.checkpoint import load_model
-from recondreamer.recon.config import MODEL_TYPES, PRESETS, ReconConfig, make_config
-from recondreamer.recon.data import TrainingSet, TrainingView
-from recondreamer.recon.render import render_frames, render_trajectory
-from recondreamer.recon.trainer import Trainer, train_scene
+from importlib import import_module
 
-__all__ = [
-    "MODEL_TYPES",
-    "PRESETS",
-    "GaussianSceneModel",
-    "ReconConfig",
-    "Trainer",
-    "TrainingSet",
-    "TrainingView",
-    "load_model",
-    "make_config",
-    "render_frames",
-    "render_trajectory",
-    "train_scene",
-]
+# Public name -> defining module. Imported on first use (PEP 562) so that ``recondreamer --help``,
+# which only needs ``recondreamer.recon.config``, does not pay for importing torch.
+_EXPORTS = {
+    "GaussianSceneModel": "recondreamer.recon.base",
+    "load_model": "recondreamer.recon.checkpoint",
+    "MODEL_TYPES": "recondreamer.recon.config",
+    "PRESETS": "recondreamer.recon.config",
+    "ReconConfig": "recondreamer.recon.config",
+    "make_config": "recondreamer.recon.config",
+    "TrainingSet": "recondreamer.recon.data",
+    "TrainingView": "recondreamer.recon.data",
+    "render_frames": "recondreamer.recon.render",
+    "render_trajectory": "recondreamer.recon.render",
+    "Trainer": "recondreamer.recon.trainer",
+    "train_scene": "recondreamer.recon.trainer",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name not in _EXPORTS:
+        raise AttributeError(f"module 'recondreamer.recon' has no attribute {name!r}")
+    return getattr(import_module(_EXPORTS[name]), name)
