@@ -1,0 +1,136 @@
+"""Evaluation-model files and running them on frames of any size.
+
+A model file is a torch checkpoint ``{"format": "recondreamer-eval-model", "version": 1,
+"kind": ..., "config": {...}, "state_dict": ..., "training": {...}}``. Frames are resized to
+the network's input size (antialiased bilinear) and outputs are mapped back to the frame size,
+so the same model scores renders at any resolution.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from recondreamer.errors import CheckpointError
+from recondreamer.evaluation.models import MODEL_CONFIGS, config_from_dict, config_to_dict
+from recondreamer.io import atomic_path
+
+FORMAT = "recondreamer-eval-model"
+FORMAT_VERSION = 1
+MODEL_FILES = {
+    "vehicle_detector": "vehicle_detector.pt",
+    "lane_segmenter": "lane_segmenter.pt",
+    "fid_features": "fid_features.pt",
+}
+
+
+@dataclass
+class LoadedModel:
+    kind: str
+    module: torch.nn.Module  # in eval mode
+    path: Path
+    sha256: str
+    training: dict  # provenance written at training time (corpus, steps, gates)
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "path": str(self.path), "sha256": self.sha256, "config": config_to_dict(self.module.config)}
+
+
+def file_sha256(path: str | Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for chunk in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def save_model(path: str | Path, kind: str, module: torch.nn.Module, training: dict) -> None:
+    """Write a model file atomically."""
+    payload = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "kind": kind,
+        "config": config_to_dict(module.config),
+        "state_dict": module.state_dict(),
+        "training": training,
+    }
+    with atomic_path(path) as tmp:
+        torch.save(payload, tmp)
+
+
+def load_model(path: str | Path, kind: str) -> LoadedModel:
+    """Load an evaluation model file of the given kind; CheckpointError naming the file otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: evaluation model file not found (train it with 'recondreamer train-eval-models')")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # torch raises many types for corrupt or foreign files
+        raise CheckpointError(f"{path}: not a readable torch checkpoint ({error})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not a recondreamer evaluation model file")
+    if payload.get("version") != FORMAT_VERSION:
+        raise CheckpointError(f"{path}: unknown evaluation model format version {payload.get('version')!r}")
+    if payload.get("kind") != kind:
+        raise CheckpointError(f"{path}: holds a {payload.get('kind')!r} model, expected {kind!r}")
+    if kind not in MODEL_CONFIGS:
+        raise CheckpointError(f"{path}: unknown model kind {kind!r}")
+    module = config_from_dict(kind, payload["config"]).build()
+    module.load_state_dict(payload["state_dict"])
+    module.eval()
+    return LoadedModel(kind, module, path, file_sha256(path), payload.get("training", {}))
+
+
+def images_to_tensor(images: np.ndarray, width: int, height: int) -> torch.Tensor:  # (N,H,W,3) uint8 -> (N,3,h,w)
+    """uint8 frames to float [0,255] tensors at the network's input size."""
+    tensor = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float()
+    if tensor.shape[-2:] != (height, width):
+        tensor = F.interpolate(tensor, size=(height, width), mode="bilinear", align_corners=False, antialias=True)
+    return tensor
+
+
+def _batches(images: np.ndarray, batch_size: int):
+    for start in range(0, len(images), batch_size):
+        yield images[start : start + batch_size]
+
+
+@torch.no_grad()
+def detect_vehicles(
+    model: torch.nn.Module, images: np.ndarray, score_threshold: float, batch_size: int = 16
+) -> list[tuple[np.ndarray, np.ndarray]]:  # images (N,H,W,3) uint8 -> N x (boxes (n,4) xyxy px, scores (n,))
+    """Vehicle boxes in the frames' own pixel coordinates, scores above ``score_threshold``."""
+    config = model.config
+    height, width = images.shape[1:3]
+    scale = np.array([width / config.input_width, height / config.input_height] * 2)
+    results = []
+    for chunk in _batches(images, batch_size):
+        outputs = model(images_to_tensor(chunk, config.input_width, config.input_height))
+        for boxes, scores in model.decode(outputs, score_threshold):
+            results.append((boxes.double().numpy() * scale, scores.double().numpy()))
+    return results
+
+
+@torch.no_grad()
+def segment_lanes(model: torch.nn.Module, images: np.ndarray, batch_size: int = 16) -> np.ndarray:
+    """Lane masks (N,H,W) bool at the frames' own size (2-class argmax of the lane head)."""
+    config = model.config
+    height, width = images.shape[1:3]
+    masks = []
+    for chunk in _batches(images, batch_size):
+        logits = model(images_to_tensor(chunk, config.input_width, config.input_height))["lane_logits"]
+        if logits.shape[-2:] != (height, width):
+            logits = F.interpolate(logits, size=(height, width), mode="bilinear", align_corners=False)
+        masks.append((logits[:, 1] > logits[:, 0]).numpy())
+    return np.concatenate(masks, axis=0)
+
+
+@torch.no_grad()
+def fid_features(model: torch.nn.Module, images: np.ndarray, batch_size: int = 16) -> np.ndarray:  # -> (N,D) float64
+    config = model.config
+    features = [model.features(images_to_tensor(chunk, config.input_width, config.input_height)) for chunk in _batches(images, batch_size)]
+    return torch.cat(features).double().numpy()

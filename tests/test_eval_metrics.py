@@ -1,0 +1,162 @@
+"""Metric building blocks against closed forms and hand-made cases."""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from recondreamer.evaluation import frechet, image_metrics, lanes, nta_iou
+from recondreamer.scene.types import Polyline
+
+# ---------------------------------------------------------------- Frechet distance / FID
+
+
+def test_frechet_matches_closed_form_for_1d_and_diagonal_gaussians():
+    # 1-D: (m1 - m2)^2 + (s1 - s2)^2.
+    value = frechet.frechet_distance(np.array([1.0]), np.array([[4.0]]), np.array([-2.0]), np.array([[9.0]]))
+    assert value == pytest.approx(9.0 + (2.0 - 3.0) ** 2)
+    # Commuting (diagonal) covariances: sum of (sqrt(a) - sqrt(b))^2.
+    a, b = np.array([1.0, 4.0, 0.25]), np.array([9.0, 1.0, 0.25])
+    value = frechet.frechet_distance(np.zeros(3), np.diag(a), np.ones(3), np.diag(b))
+    assert value == pytest.approx(3.0 + np.sum((np.sqrt(a) - np.sqrt(b)) ** 2))
+
+
+def test_frechet_matches_scipy_sqrtm_route_on_random_covariances():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
+    cov1, cov2 = a @ a.T, b @ b.T + np.eye(6)
+    m1, m2 = rng.normal(size=6), rng.normal(size=6)
+    root = scipy.linalg.sqrtm(cov1 @ cov2).real
+    expected = np.sum((m1 - m2) ** 2) + np.trace(cov1) + np.trace(cov2) - 2 * np.trace(root)
+    assert frechet.frechet_distance(m1, cov1, m2, cov2) == pytest.approx(expected, rel=1e-8)
+
+
+def test_fid_of_identical_sets_is_zero_and_grows_with_noise():
+    rng = np.random.default_rng(1)
+    features = rng.normal(size=(200, 8))
+    assert frechet.fid_from_features(features, features)["fid"] == pytest.approx(0.0, abs=1e-8)
+    values = [frechet.fid_from_features(features, features + rng.normal(scale=s, size=features.shape))["fid"] for s in (0.1, 0.5, 2.0)]
+    assert values[0] < values[1] < values[2]
+
+
+def test_fid_reports_rank_deficiency_and_rejects_too_few_samples():
+    rng = np.random.default_rng(2)
+    result = frechet.fid_from_features(rng.normal(size=(5, 16)), rng.normal(size=(5, 16)))
+    assert result["covariance_full_rank"] is False and result["num_samples"] == [5, 5]
+    assert np.isfinite(result["fid"]) and result["fid"] > 0
+    with pytest.raises(ValueError, match="at least 2 samples"):
+        frechet.fid_from_features(rng.normal(size=(1, 4)), rng.normal(size=(5, 4)))
+    with pytest.raises(ValueError, match="dimensions differ"):
+        frechet.fid_from_features(rng.normal(size=(5, 4)), rng.normal(size=(5, 3)))
+
+
+# ---------------------------------------------------------------- NTA-IoU matching rules
+
+
+def test_match_threshold_scales_with_image_size():
+    assert nta_iou.match_distance_threshold(480, 320) == pytest.approx(10.0)
+    assert nta_iou.match_distance_threshold(240, 160) == pytest.approx(5.0)
+    assert nta_iou.match_distance_threshold(1920, 1280) == pytest.approx(40.0)
+
+
+def test_matching_accepts_near_centres_and_scores_iou():
+    gt = np.array([[0, 0, 10, 10]], float)
+    near = np.array([[1, 1, 11, 11]], float)  # centre 1.41 px away, IoU 81/119
+    assert nta_iou.match_gt_to_detections(gt, near, 5.0)[0] == pytest.approx(81 / 119)
+    far = np.array([[6, 0, 16, 10]], float)  # centre 6 px away: beyond the 5 px threshold
+    assert nta_iou.match_gt_to_detections(gt, far, 5.0)[0] == 0.0
+    assert nta_iou.match_gt_to_detections(gt, np.zeros((0, 4)), 5.0)[0] == 0.0
+
+
+def test_matching_uses_nearest_centre_not_best_iou_and_reuses_detections():
+    gt = np.array([[0, 0, 20, 20]], float)  # centre (10, 10)
+    small_same_centre = [9, 9, 11, 11]  # distance 0, IoU 4/400
+    big_offset = [0, 0, 22, 22]  # distance 1.41, IoU 400/484
+    scores = nta_iou.match_gt_to_detections(gt, np.array([big_offset, small_same_centre], float), 5.0)
+    assert scores[0] == pytest.approx(4 / 400)
+    two_gt = np.array([[0, 0, 10, 10], [1, 0, 11, 10]], float)
+    one_det = np.array([[0, 0, 10, 10]], float)
+    assert nta_iou.match_gt_to_detections(two_gt, one_det, 5.0) == pytest.approx([1.0, 9 / 11])
+
+
+def test_nta_iou_pools_over_all_boxes_of_all_frames():
+    gt = [np.array([[0, 0, 10, 10], [20, 20, 30, 30]], float), np.array([[0, 0, 10, 10]], float), np.zeros((0, 4))]
+    det = [np.array([[0, 0, 10, 10]], float), np.array([[0, 0, 10, 10]], float), np.array([[0, 0, 5, 5]], float)]
+    result = nta_iou.nta_iou(gt, det, 240, 160)
+    assert result["nta_iou"] == pytest.approx(2 / 3)  # (1 + 0 + 1) / 3 boxes, not a per-frame mean
+    assert result["num_gt_boxes"] == 3
+    assert nta_iou.nta_iou([np.zeros((0, 4))], [np.zeros((0, 4))], 240, 160)["nta_iou"] is None
+
+
+# ---------------------------------------------------------------- lane masks and NTL-IoU
+
+# Camera 1.5 m above the ground at the world origin looking along world +x (OpenCV axes).
+CAM_TO_WORLD = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.5], [0, 0, 0, 1]], float)
+K = np.array([[120.0, 0, 120], [0, 120.0, 80], [0, 0, 1]])
+
+
+def _pixel(x, y, z=0.0):
+    cam = np.array([-y, 1.5 - z, x])
+    u, v = (K @ cam)[:2] / cam[2]
+    return int(round(v)), int(round(u))
+
+
+def test_lane_thickness_scales_with_height():
+    assert lanes.lane_thickness(1280) == 20
+    assert lanes.lane_thickness(320) == 5
+    assert lanes.lane_thickness(160) == 3  # 2.5 rounds half up
+
+
+def test_lane_mask_draws_kept_lines_and_respects_limits():
+    line = Polyline("road_line", np.array([[2.0, -2.0, 0.0], [150.0, -2.0, 0.0]]))
+    far_side = Polyline("road_line", np.array([[2.0, 12.0, 0.0], [150.0, 12.0, 0.0]]))  # |lateral| > 10 m
+    centre = Polyline("lane_center", np.array([[2.0, 0.0, 0.0], [150.0, 0.0, 0.0]]))  # not a lane class
+    mask = lanes.lane_mask([line, far_side, centre], K, CAM_TO_WORLD, 240, 160, thickness=1)
+    assert mask[_pixel(10.0, -2.0)] and mask[_pixel(40.0, -2.0)]
+    assert not mask[_pixel(10.0, 0.0)]  # the lane centre line is not drawn
+    assert not mask[_pixel(20.0, 12.0)]  # beyond 10 m lateral
+    # Nothing beyond 75 m: the line stops at the 75 m row.
+    row_75 = _pixel(75.0, -2.0)[0]
+    assert not mask[: row_75 - 1].any()
+
+
+def test_crosswalk_contributes_only_its_long_sides():
+    # 8 m long (along y) by 3 m deep (along x) crosswalk 15 m ahead.
+    ring = np.array([[15, -4, 0], [15, 4, 0], [18, 4, 0], [18, -4, 0]], float)
+    mask = lanes.lane_mask([Polyline("crosswalk", ring)], K, CAM_TO_WORLD, 240, 160, thickness=1)
+    assert mask[_pixel(15.0, 0.0)] and mask[_pixel(18.0, 0.0)]
+    assert not mask[_pixel(16.5, 4.0)]  # the short side is left out
+
+
+def test_ntl_iou_two_class_mean_and_lane_only():
+    truth = np.zeros((10, 10), bool)
+    truth[:, 4:6] = True
+    perfect = lanes.ntl_iou([truth], [truth])
+    assert perfect["ntl_iou"] == 1.0 and perfect["lane_iou"] == 1.0
+    shifted = np.zeros_like(truth)
+    shifted[:, 5:7] = True  # overlaps one of two columns: lane IoU 10/30, background IoU 70/90
+    result = lanes.ntl_iou([shifted], [truth])
+    assert result["lane_iou"] == pytest.approx(1 / 3)
+    assert result["ntl_iou"] == pytest.approx((1 / 3 + 7 / 9) / 2)
+    empty = np.zeros_like(truth)
+    assert lanes.ntl_iou([empty], [truth])["ntl_iou"] == pytest.approx((0 + 80 / 100) / 2)
+
+
+# ---------------------------------------------------------------- PSNR / SSIM
+
+
+def test_psnr_and_ssim_known_values_and_masks():
+    rng = np.random.default_rng(3)
+    truth = rng.integers(0, 256, size=(32, 48, 3), dtype=np.uint8)
+    assert image_metrics.psnr(truth, truth) == float("inf")
+    assert image_metrics.ssim(truth, truth) == pytest.approx(1.0)
+    render = truth.astype(float) / 255.0
+    render[:16] = np.clip(render[:16] + 0.1, 0, 1)  # error only in the top half
+    mask_bottom = np.zeros((32, 48), bool)
+    mask_bottom[16:] = True
+    assert image_metrics.psnr(render, truth / 255.0, mask_bottom) == float("inf")
+    mse_top = np.mean((render[:16] - truth[:16] / 255.0) ** 2)
+    assert image_metrics.psnr(render, truth / 255.0, ~mask_bottom) == pytest.approx(-10 * np.log10(mse_top))
+    assert image_metrics.ssim(render, truth / 255.0) < 1.0
+    assert image_metrics.psnr(render, truth / 255.0, np.zeros((32, 48), bool)) is None
+    with pytest.raises(ValueError, match="differ in size"):
+        image_metrics.psnr(truth[:10], truth)

@@ -1,0 +1,227 @@
+"""Evaluation on a tiny synthetic scene: geometric ground truth, oracle models, the evaluate command, bad inputs."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from recondreamer.cli import main
+from recondreamer.errors import CheckpointError
+from recondreamer.evaluation import gates, inference, lanes, nta_iou
+from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
+from recondreamer.evaluation.renders import RenderError, load_render_frames
+from recondreamer.evaluation.training import detector_targets
+from recondreamer.scene.structure import project_boxes_2d
+from recondreamer.scene.types import Box
+
+
+@pytest.fixture(scope="module")
+def scene_dir(tmp_path_factory):
+    from recondreamer.scene import write_scene
+    from recondreamer.sources.synthetic import generate_segment
+
+    path = tmp_path_factory.mktemp("eval") / "scene"
+    write_scene(path, generate_segment(3, "quick"))
+    return path
+
+
+@pytest.fixture(scope="module")
+def scene(scene_dir):
+    from recondreamer.scene import load_scene
+
+    return load_scene(scene_dir)
+
+
+@pytest.fixture(scope="module")
+def tiny_models(tmp_path_factory):
+    """Untrained small networks saved as model files (the metric code does not care how good they are)."""
+    torch.manual_seed(0)
+    out = tmp_path_factory.mktemp("models")
+    configs = {
+        "vehicle_detector": DetectorConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16), neck_width=8),
+        "lane_segmenter": LaneSegmenterConfig(input_width=96, input_height=64, widths=(8, 16, 16), blocks=(1, 1)),
+        "fid_features": FeatureNetConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16)),
+    }
+    for kind, config in configs.items():
+        inference.save_model(out / inference.MODEL_FILES[kind], kind, config.build().eval(), {"run": "untrained test model"})
+    return out
+
+
+def _gt_boxes(scene, trajectory):
+    cams = scene.trajectory(trajectory)
+    return [nta_iou.ground_truth_boxes_2d(scene.boxes(t), scene.K, cams[t], scene.width, scene.height) for t in range(scene.num_frames)]
+
+
+def _write_frames(directory, frames):
+    directory.mkdir(parents=True, exist_ok=True)
+    for t, frame in enumerate(frames):
+        Image.fromarray(frame).save(directory / f"{t:03d}.png")
+    return directory
+
+
+# ---------------------------------------------------------------- NTA-IoU ground truth
+
+
+def test_ground_truth_filter_on_hand_made_boxes():
+    cam_to_world = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 1.5], [0, 0, 0, 1]], float)  # looks along +x
+    K = np.array([[100.0, 0, 120], [0, 100.0, 80], [0, 0, 1]])
+
+    def box(x, y, label="vehicle", points=50):
+        pose = np.eye(4)
+        pose[:3, 3] = [x, y, 0.75]
+        return Box(f"{x},{y},{label}", label, np.array([4.0, 2.0, 1.5]), pose, points)
+
+    kept = nta_iou.ground_truth_boxes_2d(
+        [box(20, 0), box(20, 0, points=9), box(20, 0, "pedestrian"), box(-20, 0), box(20, 30), box(5, -4)], K, cam_to_world, 240, 160
+    )
+    assert kept.shape == (1, 4)  # only the first: few points / pedestrian / behind / outside / cut by the border
+    # Independent check of the first box: corners at x in [18, 22], y in [-1, 1], z in [0, 1.5].
+    u = [120 + 100 * (-y) / x for x in (18, 22) for y in (-1, 1)]
+    v = [80 + 100 * (1.5 - z) / x for x in (18, 22) for z in (0, 1.5)]
+    assert kept[0] == pytest.approx([min(u), min(v), max(u), max(v)])
+
+
+def test_nta_iou_of_oracle_detections_is_one_and_drops_for_unshifted_cameras(scene):
+    truth = _gt_boxes(scene, "shift@3")
+    assert sum(len(b) for b in truth) > 0
+    oracle = nta_iou.nta_iou(truth, truth, scene.width, scene.height)
+    assert oracle["nta_iou"] == pytest.approx(1.0)
+    # A "render" that did not move the camera puts every vehicle where the original camera saw it.
+    stale = []
+    for t in range(scene.num_frames):
+        vehicles = [b for b in scene.boxes(t) if b.label == "vehicle"]
+        seen = project_boxes_2d(vehicles, scene.K, scene.cam_to_world[t], scene.width, scene.height)
+        stale.append(np.array([b.xyxy for b in seen if b.in_front], float).reshape(-1, 4))
+    assert nta_iou.nta_iou(truth, stale, scene.width, scene.height)["nta_iou"] < 0.5
+    # Slightly jittered detections keep a high but lower score.
+    jitter = [b + 1.0 for b in truth]
+    assert 0.5 < nta_iou.nta_iou(truth, jitter, scene.width, scene.height)["nta_iou"] < 1.0
+
+
+def test_ntl_iou_of_the_true_lane_mask_is_one_and_drops_for_the_wrong_camera(scene):
+    novel = scene.trajectory("shift@3")
+    truth = [lanes.lane_mask(scene.map_polylines, scene.K, novel[t], scene.width, scene.height) for t in range(scene.num_frames)]
+    assert all(m.any() for m in truth)
+    assert lanes.ntl_iou(truth, truth)["lane_iou"] == 1.0
+    stale = [lanes.lane_mask(scene.map_polylines, scene.K, scene.cam_to_world[t], scene.width, scene.height) for t in range(scene.num_frames)]
+    result = lanes.ntl_iou(stale, truth)
+    assert result["lane_iou"] < 0.5 and result["ntl_iou"] < 0.8
+
+
+# ---------------------------------------------------------------- models, targets, gates
+
+
+def test_detector_targets_decode_back_to_the_boxes():
+    config = DetectorConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16), neck_width=8)
+    model = config.build().eval()
+    boxes = np.array([[10.0, 12.0, 30.0, 28.0], [50.0, 20.0, 90.0, 50.0]])
+    heat, size, offset, _ = detector_targets([boxes], 16, 24, model.stride)
+    logits = torch.logit(heat.clamp(1e-4, 1 - 1e-4))[:, None]
+    decoded, scores = model.decode({"heatmap_logits": logits, "log_size": size, "offset": offset}, 0.5)[0]
+    order = decoded[:, 0].argsort()
+    assert decoded[order].numpy() == pytest.approx(boxes, abs=1e-3)
+    assert len(scores) == 2
+
+
+def test_model_output_shapes():
+    images = torch.rand(2, 3, 64, 96) * 255
+    det = DetectorConfig(input_width=96, input_height=64).build()(images)
+    assert det["heatmap_logits"].shape == (2, 1, 16, 24) and det["log_size"].shape == (2, 2, 16, 24)
+    seg = LaneSegmenterConfig(input_width=96, input_height=64).build()(images)
+    assert seg["lane_logits"].shape == (2, 2, 64, 96) and seg["area_logits"].shape == (2, 2, 64, 96)
+    fid = FeatureNetConfig(input_width=96, input_height=64).build()
+    assert fid(images).shape == (2, 9, 64, 96) and fid.features(images).shape == (2, 128)
+
+
+def test_average_precision_with_ignored_vehicles():
+    gt = [np.array([[0, 0, 10, 10]], float)]
+    ignore = [np.array([[50, 50, 60, 60]], float)]
+    perfect = [(np.array([[0, 0, 10, 10], [50, 50, 60, 60]], float), np.array([0.9, 0.8]))]
+    assert gates.average_precision_50(perfect, gt, ignore)["ap50"] == pytest.approx(1.0)
+    # A higher-scored false positive halves precision at full recall: AP = 0.5.
+    with_fp = [(np.array([[0, 0, 10, 10], [100, 100, 110, 110]], float), np.array([0.5, 0.9]))]
+    assert gates.average_precision_50(with_fp, gt, ignore)["ap50"] == pytest.approx(0.5)
+    assert gates.average_precision_50([(np.zeros((0, 4)), np.zeros(0))], gt, ignore)["ap50"] == 0.0
+
+
+# ---------------------------------------------------------------- evaluate command and bad inputs
+
+
+def test_evaluate_command_writes_every_metric(scene, scene_dir, tiny_models, tmp_path):
+    truth = np.stack([scene.novel_image("shift@3", t) for t in range(scene.num_frames)])
+    original = np.stack([scene.image(t) for t in range(scene.num_frames)])
+    rng = np.random.default_rng(0)
+    noisy = lambda images, s: np.clip(images + rng.normal(0, s, images.shape), 0, 255).astype(np.uint8)  # noqa: E731
+    dirs = {
+        "shift@3": _write_frames(tmp_path / "truth", truth),
+        "original": _write_frames(tmp_path / "original", original),
+        "shift@6": _write_frames(tmp_path / "noisy6", noisy(np.stack([scene.novel_image("shift@6", t) for t in range(scene.num_frames)]), 40)),
+    }
+    out = tmp_path / "metrics.json"
+    args = ["evaluate", "--scene", str(scene_dir), "--models", str(tiny_models), "--out", str(out)]
+    for name, directory in dirs.items():
+        args += ["--trajectory", name, "--renders", str(directory)]
+    assert main(args) == 0
+    doc = json.loads(out.read_text())
+    per = doc["trajectories"]
+    assert per["original"]["fid"]["fid"] == pytest.approx(0.0, abs=1e-6)  # FID(X, X) = 0
+    assert per["shift@3"]["truth"]["ssim"]["mean"] == pytest.approx(1.0)
+    assert per["shift@3"]["truth"]["psnr"]["num_identical_frames"] == scene.num_frames
+    assert per["shift@6"]["truth"]["psnr"]["mean"] < 30 and per["shift@6"]["truth"]["psnr_lanes"]["num_frames"] > 0
+    for name in dirs:
+        assert set(per[name]) >= {"nta_iou", "ntl_iou", "fid", "truth"}
+    settings = doc["settings"]
+    assert len(settings["models"]["vehicle_detector"]["sha256"]) == 64
+    assert settings["nta_iou"]["match_distance_px"] == pytest.approx(2.0)  # 96x64 is 1/5 of 480x320
+    assert "not pytorch-fid's InceptionV3" in settings["fid_feature_network"]
+    assert doc["fid_pooled"]["num_samples"][0] == 3 * scene.num_frames
+    pooled = tmp_path / "pooled.json"
+    assert main(["fid-pool", str(out.with_suffix(".features.npz")), "--out", str(pooled)]) == 0
+    assert json.loads(pooled.read_text())["fid"] == pytest.approx(doc["fid_pooled"]["fid"])
+
+
+def test_fid_through_the_feature_network_grows_with_noise(scene, tiny_models):
+    model = inference.load_model(tiny_models / "fid_features.pt", "fid_features").module
+    from recondreamer.evaluation.frechet import fid_from_features
+
+    original = np.stack([scene.image(t) for t in range(scene.num_frames)])
+    reference = inference.fid_features(model, original)
+    rng = np.random.default_rng(1)
+    values = [
+        fid_from_features(inference.fid_features(model, np.clip(original + rng.normal(0, s, original.shape), 0, 255).astype(np.uint8)), reference)["fid"]
+        for s in (5, 20, 60)
+    ]
+    assert values[0] < values[1] < values[2]
+
+
+def test_bad_renders_give_errors_naming_the_file(scene, scene_dir, tiny_models, tmp_path, capsys):
+    frames = np.stack([scene.image(t) for t in range(scene.num_frames)])
+    missing = _write_frames(tmp_path / "missing", frames)
+    (missing / "004.png").unlink()
+    with pytest.raises(RenderError, match="004.png"):
+        load_render_frames(missing, scene.num_frames, scene.width, scene.height)
+    wrong = _write_frames(tmp_path / "wrong", frames)
+    Image.fromarray(frames[2][:32]).save(wrong / "002.png")
+    with pytest.raises(RenderError, match=r"002.png: frame is 96x32"):
+        load_render_frames(wrong, scene.num_frames, scene.width, scene.height)
+    code = main(["evaluate", "--scene", str(scene_dir), "--renders", str(missing), "--trajectory", "shift@3", "--models", str(tiny_models), "--out", str(tmp_path / "m.json")])
+    assert code == 1 and "004.png" in capsys.readouterr().err
+    assert not (tmp_path / "m.json").exists()
+    with pytest.raises(CheckpointError, match="holds a 'lane_segmenter' model"):
+        inference.load_model(tiny_models / "lane_segmenter.pt", "vehicle_detector")
+    with pytest.raises(CheckpointError, match="not found"):
+        inference.load_model(tmp_path / "none.pt", "vehicle_detector")
+
+
+def test_judge_command_prefers_the_true_view(scene, scene_dir, tmp_path):
+    truth = np.stack([scene.novel_image("shift@3", t) for t in range(scene.num_frames)])
+    blurred = np.stack([np.asarray(Image.fromarray(f).resize((24, 16)).resize((96, 64))) for f in truth])
+    good, bad = _write_frames(tmp_path / "good", truth), _write_frames(tmp_path / "bad", blurred)
+    out = tmp_path / "judge.json"
+    clip = ["--clip", str(scene_dir), "shift@3", f"good={good}", f"bad={bad}"]
+    assert main(["judge", *clip, *clip[:3], f"bad={bad}", f"good={good}", "--out", str(out)]) == 0
+    pairs = {(p["method"], p["versus"]): p for p in json.loads(out.read_text())["pairs"]}
+    assert pairs[("good", "bad")]["per_trajectory"]["shift@3"] == {"wins": 2, "losses": 0, "ties": 0, "comparisons": 2, "win_rate": 1.0}
+    assert main(["judge", "--clip", str(scene_dir), "shift@9", f"good={good}", f"bad={bad}", "--out", str(out)]) == 1
