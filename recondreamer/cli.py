@@ -17,6 +17,13 @@ from recondreamer.errors import RecondreamerError
 
 # Stage order = the order sub-commands are listed in ``recondreamer --help``.
 COMMAND_MODULES = (
+    "recondreamer.scene.commands",
+    "recondreamer.sources.waymo.commands",
+    "recondreamer.sources.synthetic.commands",
+    "recondreamer.recon.commands",
+    "recondreamer.restorer.commands",
+    "recondreamer.evaluation.commands",
+    "recondreamer.report.commands",
 )
 
 
