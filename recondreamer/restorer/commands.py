@@ -1,0 +1,234 @@
+"""Sub-commands of the generative stack: autoencoder, world models, pairs, DriveRestorer, DD4D."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import time
+
+from recondreamer.restorer.config import ARCHS, WORLD_MODEL_ARCHS
+
+LOG = logging.getLogger(__name__)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("train-autoencoder", help="train the latent autoencoder on corpus frames")
+    p.add_argument("--corpus", required=True, help="corpus directory (scene directories below it) or one scene directory")
+    p.add_argument("--out", required=True, help="autoencoder checkpoint to write")
+    p.add_argument("--steps", type=int, default=None, help="training steps (default from AutoencoderConfig)")
+    p.add_argument("--latent-channels", type=int, default=None, help="latent channels (default 4)")
+    p.add_argument("--seed", type=int, default=0, help="random seed")
+    _add_threads_option(p)
+    p.set_defaults(func=run_train_autoencoder)
+
+    p = subparsers.add_parser("pretrain-world-model", help="pretrain an sd/svd/dd2 world model on corpus clips")
+    p.add_argument("--arch", required=True, choices=WORLD_MODEL_ARCHS, help="backbone: sd (image), svd (video), dd2 (video + structure)")
+    p.add_argument("--corpus", required=True, help="corpus directory (scene directories below it)")
+    p.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (train-autoencoder output)")
+    p.add_argument("--out", required=True, help="world-model checkpoint to write")
+    _add_train_options(p)
+    _add_threads_option(p)
+    p.set_defaults(func=run_pretrain_world_model)
+
+    p = subparsers.add_parser("make-pairs", help="render restoration pairs from reconstruction snapshots (paper Fig. 3)")
+    p.add_argument("--run", required=True, nargs="+", help="reconstruction run directories (with snapshots/step_*.pt)")
+    p.add_argument("--out", required=True, help="directory receiving one <scene>__<run>.npz per run")
+    p.add_argument("--stages", type=int, default=4, help="training stages (snapshots) sampled per run (default 4)")
+    p.add_argument("--scene", default=None, help="scene directory of every run (default: the scene named in each run.json)")
+    _add_threads_option(p)
+    p.set_defaults(func=run_make_pairs)
+
+    p = subparsers.add_parser("train-restorer", help="fine-tune a world model into DriveRestorer on restoration pairs")
+    p.add_argument("--arch", required=True, choices=ARCHS, help="restorer backbone (dd2_mask fine-tunes a dd2 world model with masks)")
+    p.add_argument("--world-model", required=True, help="pretrained world-model checkpoint of the matching arch")
+    p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files")
+    p.add_argument("--out", required=True, help="restorer checkpoint to write")
+    p.add_argument("--mask-probability", type=float, default=None, help="dd2_mask: probability that a frame is masked (default from MaskConfig)")
+    _add_train_options(p)
+    _add_threads_option(p)
+    p.set_defaults(func=run_train_restorer)
+
+    p = subparsers.add_parser("restore", help="restore a rendered clip with DriveRestorer")
+    p.add_argument("--restorer", required=True, help="restorer checkpoint (train-restorer output)")
+    p.add_argument("--scene", required=True, help="scene directory (boxes and HD map for the structure maps; frame size check)")
+    p.add_argument("--renders", required=True, help="rendered clip: folder of frames (or with a sub-folder named after the trajectory) or a .npy")
+    p.add_argument("--trajectory", required=True, help="trajectory the renders were made along (original, shift@Y, lane_change, file:PATH)")
+    p.add_argument("--out", required=True, help="output folder of restored frames {t:03d}.png")
+    _add_sampling_options(p)
+    p.add_argument("--strength", type=float, default=None, help="1 = start from noise; < 1 starts from the noised render (default from the checkpoint)")
+    _add_threads_option(p)
+    p.set_defaults(func=run_restore)
+
+    p = subparsers.add_parser("dd4d-generate", help="DriveDreamer4D: generate a novel-trajectory video with the pretrained dd2 world model")
+    p.add_argument("--world-model", required=True, help="pretrained dd2 world-model checkpoint (not fine-tuned on pairs)")
+    p.add_argument("--scene", required=True, help="scene directory (original frames as reference, boxes and map)")
+    p.add_argument("--trajectory", required=True, help="novel trajectory (shift@Y, lane_change, file:PATH)")
+    p.add_argument("--out", required=True, help="output folder of generated frames {t:03d}.png")
+    _add_sampling_options(p)
+    _add_threads_option(p)
+    p.set_defaults(func=run_dd4d_generate)
+
+
+def _add_threads_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--threads", type=int, default=1,
+        help="torch CPU threads (default 1: jobs run side by side, and OpenMP threads on a busy "
+        "machine stall each other far more than they help)",
+    )
+
+
+def _set_threads(args: argparse.Namespace) -> None:
+    import torch
+
+    torch.set_num_threads(max(1, args.threads))
+
+
+def _add_train_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--steps", type=int, default=None, help="training steps (default from TrainConfig)")
+    p.add_argument("--batch-size", type=int, default=None, help="clips per step (default from TrainConfig)")
+    p.add_argument("--window", type=int, default=None, help="frames per clip (default from TrainConfig)")
+    p.add_argument("--learning-rate", type=float, default=None, help="AdamW learning rate (default from TrainConfig)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+
+
+def _add_sampling_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--steps", type=int, default=None, help="DDIM steps (default from the checkpoint)")
+    p.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows (default from the checkpoint)")
+    p.add_argument("--seed", type=int, default=None, help="sampling seed (default from the checkpoint)")
+
+
+def _train_config(args: argparse.Namespace, base=None):
+    from recondreamer.restorer.config import TrainConfig
+
+    overrides = {
+        "steps": args.steps, "batch_size": args.batch_size, "window": args.window,
+        "learning_rate": args.learning_rate, "seed": args.seed,
+    }
+    return dataclasses.replace(base or TrainConfig(), **{k: v for k, v in overrides.items() if v is not None})
+
+
+def run_train_autoencoder(args: argparse.Namespace) -> int:
+    from recondreamer.restorer.config import AutoencoderConfig
+    from recondreamer.restorer.data import load_corpus_frames
+    from recondreamer.restorer.training import train_autoencoder
+
+    _set_threads(args)
+    config = AutoencoderConfig()
+    if args.steps is not None:
+        config = dataclasses.replace(config, steps=args.steps)
+    if args.latent_channels is not None:
+        config = dataclasses.replace(config, latent_channels=args.latent_channels)
+    scene_ids, frames = load_corpus_frames(args.corpus)
+    LOG.info("autoencoder corpus: %d scenes (%s)", len(scene_ids), ", ".join(scene_ids))
+    metrics = train_autoencoder(frames, args.out, config, seed=args.seed)
+    LOG.info("wrote %s: held-out PSNR %.2f dB, %.0f ms/step", args.out, metrics["heldout_psnr"], metrics["ms_per_step"])
+    return 0
+
+
+def run_pretrain_world_model(args: argparse.Namespace) -> int:
+    from recondreamer.restorer.config import DiffusionConfig, UNetConfig
+    from recondreamer.restorer.data import load_corpus_sequences, structure_channel_names
+    from recondreamer.restorer.models import load_autoencoder
+    from recondreamer.restorer.training import pretrain_world_model
+
+    _set_threads(args)
+    autoencoder, _ = load_autoencoder(args.autoencoder)
+    uses_structure = args.arch == "dd2"
+    names = structure_channel_names() if uses_structure else ()
+    unet_config = UNetConfig(
+        arch=args.arch, latent_channels=autoencoder.config.latent_channels, structure_channels=len(names),
+        downsample_factor=autoencoder.config.downsample_factor,
+    )
+    sequences = load_corpus_sequences(args.corpus, autoencoder, uses_structure)
+    f = autoencoder.config.downsample_factor
+    frame_size = (sequences[0].target.shape[-2] * f, sequences[0].target.shape[-1] * f)
+    stats = pretrain_world_model(sequences, autoencoder, unet_config, DiffusionConfig(), _train_config(args), names, frame_size, args.out)
+    LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
+    return 0
+
+
+def run_make_pairs(args: argparse.Namespace) -> int:
+    from recondreamer.restorer.pairs import make_pairs_for_run
+
+    _set_threads(args)
+    for run in args.run:
+        out = make_pairs_for_run(run, args.out, args.stages, args.scene)
+        LOG.info("wrote %s", out)
+    return 0
+
+
+def run_train_restorer(args: argparse.Namespace) -> int:
+    from recondreamer.restorer.config import MaskConfig, RestoreConfig
+    from recondreamer.restorer.data import find_pairs_files, load_pair_sequences
+    from recondreamer.restorer.inference import load_world_model
+    from recondreamer.restorer.training import train_restorer
+
+    _set_threads(args)
+    world = load_world_model(args.world_model)
+    masks = None
+    if args.arch == "dd2_mask":
+        masks = MaskConfig() if args.mask_probability is None else dataclasses.replace(MaskConfig(), probability=args.mask_probability)
+    files = find_pairs_files(args.pairs)
+    sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=masks is not None)
+    stats = train_restorer(world, args.arch, sequences, _train_config(args, world.train_config), masks, RestoreConfig(), args.out, args.world_model)
+    LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
+    return 0
+
+
+def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
+    """Original frames (reference) and structure maps of the trajectory's cameras."""
+    import numpy as np
+
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.restorer.data import scene_structure
+    from recondreamer.scene import load_scene
+    from recondreamer.scene.trajectories import trajectory_cam_to_world
+
+    scene = load_scene(scene_dir)
+    try:
+        cams = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, trajectory)
+    except ValueError as error:
+        raise RecondreamerError(f"--trajectory {trajectory!r}: {error}") from error
+    reference = np.stack([scene.image(t) for t in range(scene.num_frames)])
+    structure = scene_structure(scene, cams) if needs_structure else None
+    return scene, reference, structure
+
+
+def run_restore(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.restorer.frames_io import read_frames, write_frames
+    from recondreamer.restorer.inference import load_restorer, restore_clip
+
+    _set_threads(args)
+    restorer = load_restorer(args.restorer)
+    renders = read_frames(args.renders, args.trajectory)
+    scene, reference, structure = _scene_conditions(args.scene, args.trajectory, restorer.unet_config.uses_structure)
+    if renders.shape != reference.shape:
+        raise RecondreamerError(f"{args.renders}: renders {renders.shape} do not match the scene's frames {reference.shape} (T,H,W,3)")
+    start = time.perf_counter()
+    restored = restore_clip(restorer, renders, structure, num_steps=args.steps, overlap=args.overlap, strength=args.strength, seed=args.seed)
+    seconds = time.perf_counter() - start
+    LOG.info("restored %d frames with %s in %.1f s", len(restored), restorer.arch, seconds)
+    info = {"restorer": str(args.restorer), "arch": restorer.arch, "scene_id": scene.scene_id, "trajectory": args.trajectory, "seconds": seconds}
+    write_frames(args.out, restored, info)
+    return 0
+
+
+def run_dd4d_generate(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.restorer.frames_io import write_frames
+    from recondreamer.restorer.inference import generate_clip, load_world_model
+
+    _set_threads(args)
+    world = load_world_model(args.world_model)
+    if world.arch != "dd2":
+        raise RecondreamerError(f"{args.world_model}: DriveDreamer4D generation needs the dd2 world model, got {world.arch!r}")
+    scene, reference, structure = _scene_conditions(args.scene, args.trajectory, True)
+    start = time.perf_counter()
+    generated = generate_clip(world, reference, structure, num_steps=args.steps, overlap=args.overlap, seed=args.seed or 0)
+    seconds = time.perf_counter() - start
+    LOG.info("generated %d frames along %s in %.1f s", len(generated), args.trajectory, seconds)
+    info = {"world_model": str(args.world_model), "scene_id": scene.scene_id, "trajectory": args.trajectory, "seconds": seconds}
+    write_frames(args.out, generated, info)
+    return 0

@@ -1,0 +1,134 @@
+"""Dataclass configs of the generative stack; each one is stored inside the checkpoints it builds.
+
+Defaults are sized for the embedded synthetic benchmark on a 2-core CPU: 240x160 frames,
+60x40 latents, 8-frame windows, a UNet of about one million parameters and 10 DDIM steps.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+ARCHS = ("sd", "svd", "dd2", "dd2_mask")
+WORLD_MODEL_ARCHS = ("sd", "svd", "dd2")
+
+
+def config_to_dict(config) -> dict:
+    """A JSON-friendly dict (tuples become lists) for checkpoints and logs."""
+    return dataclasses.asdict(config)
+
+
+def config_from_dict(cls, values: dict):
+    """Rebuild a config dataclass, turning lists back into tuples where the field is a tuple."""
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in values:
+            continue
+        value = values[f.name]
+        if isinstance(value, list):
+            value = tuple(value)
+        kwargs[f.name] = value
+    return cls(**kwargs)
+
+
+@dataclass(frozen=True)
+class AutoencoderConfig:
+    """The latent autoencoder E/D: ``downsample_factor``x smaller latents with ``latent_channels``."""
+
+    latent_channels: int = 4
+    # One entry per resolution, full resolution first; narrow at full resolution where convs cost most.
+    hidden_channels: tuple[int, ...] = (16, 48, 64)
+    # Training.
+    steps: int = 1500
+    batch_size: int = 8
+    crop_size: int = 48  # random square crops of corpus frames (the network is fully convolutional)
+    learning_rate: float = 2e-3
+    ssim_weight: float = 0.1  # small SSIM term beside L1 (no perceptual network is available)
+
+    @property
+    def downsample_factor(self) -> int:
+        return 2 ** (len(self.hidden_channels) - 1)
+
+
+@dataclass(frozen=True)
+class UNetConfig:
+    """A lean latent diffusion UNet; ``arch`` decides which conditions and temporal layers exist."""
+
+    arch: str = "dd2"  # one of ARCHS
+    latent_channels: int = 4
+    channels: tuple[int, ...] = (32, 64, 64)  # one entry per resolution level, finest first
+    attention_levels: tuple[bool, ...] = (False, False, True)  # spatial self-attention per level
+    temporal_levels: tuple[bool, ...] = (True, True, True)  # temporal attention per level (video archs)
+    num_heads: int = 4
+    time_embed_dim: int = 128
+    structure_channels: int = 0  # C of the structure maps (dd2 archs); 0 = no structure branch
+    structure_hidden: int = 16
+    downsample_factor: int = 4  # pixel-to-latent factor (structure maps come at pixel resolution)
+    degraded_condition: bool = False  # restorer: degraded-video latent as an extra (zero-initialised) input
+
+    @property
+    def temporal(self) -> bool:
+        return self.arch != "sd"
+
+    @property
+    def uses_structure(self) -> bool:
+        return self.arch in ("dd2", "dd2_mask")
+
+
+@dataclass(frozen=True)
+class DiffusionConfig:
+    """Noise schedule (epsilon prediction) and DDIM sampling defaults."""
+
+    schedule: str = "linear"  # "linear" (Stable Diffusion's scaled-linear betas) or "cosine"
+    train_timesteps: int = 1000
+    beta_start: float = 0.00085
+    beta_end: float = 0.012
+    sample_steps: int = 10
+    eta: float = 0.0
+
+
+@dataclass(frozen=True)
+class MaskConfig:
+    """Random masks on degraded frames (dd2_mask): sky/scene boundary band and distant centre.
+
+    A frame is masked with ``probability``; a masked frame gets ``boundary_boxes`` random boxes
+    centred on the sky/scene boundary band and ``center_boxes`` random boxes centred in the
+    distant central region. Every box is clipped to the union of the two regions, so masked
+    pixels never fall outside them. Sizes are fractions of the image height.
+    """
+
+    probability: float = 0.5
+    band_half_width: float = 0.06  # half-width of the sky/scene boundary band
+    boundary_boxes: tuple[int, int] = (2, 5)  # inclusive range of the number of boxes
+    center_boxes: tuple[int, int] = (1, 2)
+    box_size: tuple[float, float] = (0.08, 0.25)  # side length range
+    center_width: float = 0.4  # distant central region (around the vanishing point): width ...
+    center_height: float = 0.22  # ... and height, as fractions of the image width and height
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Optimisation of a world model or restorer."""
+
+    steps: int = 1200
+    batch_size: int = 2  # clips per step
+    window: int = 8  # frames per clip
+    crop: tuple[int, int] = (24, 32)  # latent crop (h, w) used in training; 0,0 = whole latent
+    learning_rate: float = 1e-3
+    weight_decay: float = 0.0
+    warmup_steps: int = 50
+    checkpoint_every: int = 200
+    log_every: int = 50
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class RestoreConfig:
+    """Inference of a restorer over a clip of any length."""
+
+    window: int = 8
+    overlap: int = 2  # frames shared by consecutive windows, linearly cross-faded in latent space
+    sample_steps: int = 10
+    strength: float = 1.0  # 1 = start from pure noise; < 1 starts from the noised degraded latent
+    seed: int = 0
+

@@ -1,0 +1,197 @@
+"""Training data of the generative stack: corpus sequences and restoration pairs, as latents.
+
+A *sequence* is one camera trajectory of one scene: target frames, the original-trajectory frames
+used as reference (the same frames for the original trajectory; the true novel views of a
+synthetic scene are targets referenced by the original frames, which is exactly the
+DriveDreamer4D task), structure maps drawn in the target camera, and for restoration pairs the
+degraded renders of several training stages. Clips are short windows of a sequence.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recondreamer.errors import RecondreamerError
+from recondreamer.restorer.autoencoder import Autoencoder, encode_frames
+
+LOG = logging.getLogger(__name__)
+
+
+def structure_to_uint8(structure: np.ndarray) -> np.ndarray:  # (...) float in [0,1] -> uint8
+    return np.round(np.clip(structure, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
+def structure_from_uint8(structure: np.ndarray | torch.Tensor) -> torch.Tensor:  # uint8 -> float in [0,1]
+    return torch.as_tensor(structure).float() / 255.0
+
+
+def scene_structure(scene, cam_to_world: np.ndarray) -> np.ndarray:  # (T,4,4) -> (T,C,H,W) uint8
+    """Structure maps (3D boxes, HD map) of every frame drawn in the given cameras."""
+    from recondreamer.scene.structure import structure_channels
+
+    maps = [
+        structure_channels(scene.boxes(t), scene.map_polylines, scene.K, cam_to_world[t], scene.width, scene.height)
+        for t in range(scene.num_frames)
+    ]
+    return structure_to_uint8(np.stack(maps))
+
+
+def structure_channel_names() -> tuple[str, ...]:
+    from recondreamer.scene.structure import STRUCTURE_CHANNELS
+
+    return tuple(STRUCTURE_CHANNELS)
+
+
+def scene_sky_masks(scene) -> np.ndarray | None:  # (T,H,W) bool or None
+    masks = [scene.sky_mask(t) for t in range(scene.num_frames)]
+    if any(m is None for m in masks):
+        return None
+    return np.stack(masks).astype(bool)
+
+
+def scene_vanishing_points(scene, cam_to_world: np.ndarray) -> np.ndarray:  # (T,2)
+    from recondreamer.restorer.masks import vanishing_point
+
+    return np.stack([vanishing_point(scene.K, cam_to_world[t], scene.ego_to_world[t]) for t in range(scene.num_frames)])
+
+
+@dataclass
+class Sequence:
+    """One trajectory of one scene, latents pre-encoded (the autoencoder is frozen)."""
+
+    name: str
+    scene_id: str
+    target: torch.Tensor  # (T,c,h,w) latents of the frames to generate / restore to
+    reference: torch.Tensor  # (T,c,h,w) latents of the original-trajectory frames
+    structure: np.ndarray | None  # (T,S,H,W) uint8 structure maps in the target camera
+    degraded: torch.Tensor | None = None  # (K,T,c,h,w) latents of degraded renders (pairs)
+    degraded_frames: np.ndarray | None = None  # (K,T,H,W,3) uint8, kept where masks are applied
+    sky_masks: np.ndarray | None = None  # (T,H,W) bool
+    vanishing: np.ndarray | None = None  # (T,2)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.target.shape[0])
+
+
+def find_scene_dirs(root: str | os.PathLike) -> list[Path]:
+    """A scene directory itself, or the scene directories directly below a corpus directory."""
+    root = Path(root)
+    if not root.is_dir():
+        raise RecondreamerError(f"{root}: corpus directory does not exist")
+    if (root / "scene.json").is_file():
+        return [root]
+    scenes = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith(".") and (p / "scene.json").is_file())
+    if not scenes:
+        raise RecondreamerError(f"{root}: no scene directories (with scene.json) found")
+    return scenes
+
+
+def load_corpus_frames(corpus: str | os.PathLike, max_frames_per_scene: int | None = None) -> tuple[list[str], list[np.ndarray]]:
+    """Scene ids and their original (and true novel) frames, each (T,H,W,3) uint8."""
+    from recondreamer.scene import load_scene
+
+    ids, frames = [], []
+    for scene_dir in find_scene_dirs(corpus):
+        scene = load_scene(scene_dir)
+        indices = range(scene.num_frames) if max_frames_per_scene is None else np.linspace(0, scene.num_frames - 1, max_frames_per_scene).round().astype(int)
+        stack = [scene.image(int(t)) for t in indices]
+        for name in scene.novel_trajectories:
+            stack += [scene.novel_image(name, int(t)) for t in indices]
+        ids.append(scene.scene_id)
+        frames.append(np.stack(stack))
+    return ids, frames
+
+
+def load_corpus_sequences(corpus: str | os.PathLike, autoencoder: Autoencoder, with_structure: bool) -> list[Sequence]:
+    """Every scene of a corpus: its original trajectory and, where present, its true novel views."""
+    from recondreamer.scene import load_scene
+    from recondreamer.scene.trajectories import trajectory_cam_to_world
+
+    sequences = []
+    for scene_dir in find_scene_dirs(corpus):
+        scene = load_scene(scene_dir)
+        original = np.stack([scene.image(t) for t in range(scene.num_frames)])
+        reference = encode_frames(autoencoder, original)
+        trajectories = [("original", original)]
+        for name in scene.novel_trajectories:
+            trajectories.append((name, np.stack([scene.novel_image(name, t) for t in range(scene.num_frames)])))
+        for name, frames in trajectories:
+            cams = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, name)
+            sequences.append(
+                Sequence(
+                    name=f"{scene.scene_id}/{name}",
+                    scene_id=scene.scene_id,
+                    target=reference if name == "original" else encode_frames(autoencoder, frames),
+                    reference=reference,
+                    structure=scene_structure(scene, cams) if with_structure else None,
+                )
+            )
+        LOG.info("corpus scene %s: %d trajectories, %d frames", scene.scene_id, len(trajectories), scene.num_frames)
+    return sequences
+
+
+PAIRS_KEYS = ("gt", "degraded", "stages", "structure", "vanishing")
+
+
+def load_pairs_file(path: Path) -> dict:
+    """Read one restoration-pairs file written by ``make-pairs`` and check its arrays."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            content = {key: data[key] for key in data.files}
+    except (OSError, ValueError) as error:
+        raise RecondreamerError(f"{path}: not a readable restoration-pairs file ({error})") from error
+    missing = [key for key in PAIRS_KEYS if key not in content]
+    if missing:
+        raise RecondreamerError(f"{path}: restoration-pairs file lacks arrays {missing}")
+    gt, degraded = content["gt"], content["degraded"]
+    if gt.ndim != 4 or degraded.ndim != 5 or degraded.shape[1:] != gt.shape:
+        raise RecondreamerError(f"{path}: degraded renders {degraded.shape} do not match ground truth {gt.shape} as (K,T,H,W,3)")
+    return content
+
+
+def find_pairs_files(dirs: list[str | os.PathLike]) -> list[Path]:
+    files: list[Path] = []
+    for directory in dirs:
+        directory = Path(directory)
+        if directory.is_file() and directory.suffix == ".npz":
+            files.append(directory)
+            continue
+        if not directory.is_dir():
+            raise RecondreamerError(f"{directory}: restoration-pairs directory does not exist")
+        found = sorted(directory.glob("*.npz"))
+        if not found:
+            raise RecondreamerError(f"{directory}: no restoration-pairs files (*.npz)")
+        files += found
+    return files
+
+
+def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_structure: bool, keep_frames: bool) -> list[Sequence]:
+    """Restoration pairs as sequences; ``keep_frames`` keeps degraded pixels for masking."""
+    sequences = []
+    for path in files:
+        content = load_pairs_file(path)
+        gt_latents = encode_frames(autoencoder, content["gt"])
+        degraded = content["degraded"]  # (K,T,H,W,3)
+        degraded_latents = torch.stack([encode_frames(autoencoder, stage) for stage in degraded])
+        sequences.append(
+            Sequence(
+                name=path.stem,
+                scene_id=str(content["scene_id"]),
+                target=gt_latents,
+                reference=gt_latents,  # unused by restorers (their reference is the degraded clip start)
+                structure=content["structure"] if with_structure else None,
+                degraded=degraded_latents,
+                degraded_frames=degraded if keep_frames else None,
+                sky_masks=content["sky"].astype(bool) if "sky" in content else None,
+                vanishing=content["vanishing"],
+            )
+        )
+        LOG.info("pairs %s: %d stages x %d frames", path.name, degraded.shape[0], degraded.shape[1])
+    return sequences

@@ -1,0 +1,187 @@
+"""Sampling clips of any length: DriveRestorer restoration and DriveDreamer4D-style generation.
+
+A clip longer than the model's window is cut into windows that overlap by ``overlap`` frames
+(the last window is aligned to the clip's end). Each window is sampled with DDIM from the
+clip's per-frame noise (drawn once from the seed, so frames shared by two windows start from the
+same noise), and the windows' clean latents are cross-faded linearly over each overlap before
+decoding. With ``overlap = 0`` every frame comes from exactly one window, identical to sampling
+that window alone.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+from recondreamer.errors import RecondreamerError
+from recondreamer.restorer.autoencoder import decode_latents, encode_frames
+from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
+from recondreamer.restorer.diffusion import ddim_sample
+from recondreamer.restorer.models import GenerativeModel, load_generative_model
+
+
+def load_restorer(path: str | os.PathLike) -> GenerativeModel:
+    """A DriveRestorer checkpoint (``train-restorer`` output)."""
+    return load_generative_model(path, "restorer")
+
+
+def load_world_model(path: str | os.PathLike) -> GenerativeModel:
+    """A pretrained world model checkpoint (``pretrain-world-model`` output)."""
+    return load_generative_model(path, "world_model")
+
+
+def window_starts(num_frames: int, window: int, overlap: int) -> list[int]:
+    """Start frames of the windows covering ``num_frames`` frames (the last one ends the clip)."""
+    if window < 1 or not 0 <= overlap < window:
+        raise ValueError(f"need window >= 1 and 0 <= overlap < window, got window {window}, overlap {overlap}")
+    if num_frames <= window:
+        return [0]
+    starts = list(range(0, num_frames - window, window - overlap))
+    starts.append(num_frames - window)
+    return starts
+
+
+def blend_windows(
+    num_frames: int,
+    window: int,
+    overlap: int,
+    sample_window: Callable[[int, int], torch.Tensor],  # (start, end) -> (end-start, ...) latents
+) -> torch.Tensor:  # (T, ...)
+    """Sample every window and cross-fade linearly where consecutive windows overlap."""
+    starts = window_starts(num_frames, window, overlap)
+    total = None
+    weight_sum = torch.zeros(num_frames)
+    for index, start in enumerate(starts):
+        end = min(start + window, num_frames)
+        latents = sample_window(start, end)
+        weights = torch.ones(end - start)
+        if index > 0:
+            shared = min(starts[index - 1] + window, num_frames) - start
+            weights[:shared] = torch.arange(1, shared + 1, dtype=torch.float32) / (shared + 1)
+        if index + 1 < len(starts):
+            shared = end - starts[index + 1]
+            weights[end - start - shared :] = weights[end - start - shared :] * torch.arange(shared, 0, -1, dtype=torch.float32) / (shared + 1)
+        if total is None:
+            total = torch.zeros((num_frames, *latents.shape[1:]))
+        total[start:end] += weights.reshape(-1, *([1] * (latents.dim() - 1))) * latents
+        weight_sum[start:end] += weights
+    return total / weight_sum.reshape(-1, *([1] * (total.dim() - 1)))
+
+
+def _check_frames(model: GenerativeModel, frames: np.ndarray, what: str) -> None:
+    if not isinstance(frames, np.ndarray) or frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
+        shape = getattr(frames, "shape", None)
+        raise RecondreamerError(f"{what} must be a (T,H,W,3) uint8 array, got {type(frames).__name__} {shape}")
+    f = model.autoencoder.config.downsample_factor
+    height, width = frames.shape[1:3]
+    if height % f or width % f:
+        raise RecondreamerError(f"{what}: frame size {width}x{height} is not divisible by the autoencoder factor {f}")
+
+
+def _prepare_structure(model: GenerativeModel, structure: np.ndarray | None, frames_shape: tuple[int, ...]) -> torch.Tensor | None:
+    if not model.unet_config.uses_structure:
+        return None
+    t, height, width = frames_shape[:3]
+    expected = (t, len(model.structure_channels), height, width)
+    if structure is None:
+        raise RecondreamerError(f"arch {model.arch!r} needs structure conditions of shape {expected} (channels {', '.join(model.structure_channels)})")
+    if tuple(structure.shape) != expected:
+        raise RecondreamerError(f"structure conditions have shape {tuple(structure.shape)}, expected {expected} (T,C,H,W) matching the frames")
+    # Quantised exactly as in training (pairs and corpus store structure maps as uint8).
+    if structure.dtype != np.uint8:
+        structure = structure_to_uint8(np.asarray(structure, dtype=np.float32))
+    return structure_from_uint8(structure)
+
+
+@torch.no_grad()
+def _sample_clip(
+    model: GenerativeModel,
+    reference_latents: torch.Tensor,  # (T,c,h,w)
+    structure: torch.Tensor | None,  # (T,S,H,W)
+    degraded_latents: torch.Tensor | None,  # (T,c,h,w)
+    num_steps: int,
+    window: int,
+    overlap: int,
+    strength: float,
+    seed: int,
+) -> torch.Tensor:  # (T,c,h,w)
+    num_frames = reference_latents.shape[0]
+    generator = torch.Generator().manual_seed(seed)
+    noise = torch.randn(reference_latents.shape, generator=generator)
+    unet = model.unet.eval()
+
+    def sample_window(start: int, end: int) -> torch.Tensor:
+        shape = (1, end - start, *noise.shape[1:])
+        reference = reference_latents[start][None]
+        degraded = None if degraded_latents is None else degraded_latents[start:end][None]
+        features = None
+        if structure is not None:
+            features = unet.encode_structure(structure[start:end][None], shape)
+
+        def model_fn(x: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
+            return unet(x, timesteps, reference, degraded=degraded, structure_features=features)
+
+        return ddim_sample(
+            model_fn, model.schedule, noise[start:end][None], num_steps, eta=0.0,
+            start_latent=degraded, strength=strength,
+        )[0]
+
+    return blend_windows(num_frames, window, overlap, sample_window)
+
+
+def restore_clip(
+    restorer: GenerativeModel,
+    frames: np.ndarray,  # (T,H,W,3) uint8 degraded renders
+    structure: np.ndarray | None,  # (T,C,H,W) structure maps in the rendered cameras (dd2 archs)
+    *,
+    num_steps: int | None = None,
+    window: int | None = None,
+    overlap: int | None = None,
+    strength: float | None = None,
+    seed: int | None = None,
+) -> np.ndarray:  # (T,H,W,3) uint8
+    """Restore a rendered clip with DriveRestorer (defaults from the checkpoint's restore config).
+
+    Each window is conditioned on its degraded frames (its first one also as the reference
+    frame, as in training) and, for dd2 archs, on the structure maps.
+    """
+    if restorer.kind != "restorer":
+        raise RecondreamerError(f"restore_clip needs a restorer, got a {restorer.kind} ({restorer.arch})")
+    _check_frames(restorer, frames, "degraded frames")
+    structure_tensor = _prepare_structure(restorer, structure, frames.shape)
+    config = restorer.restore_config
+    degraded_latents = encode_frames(restorer.autoencoder, frames)
+    latents = _sample_clip(
+        restorer, degraded_latents, structure_tensor, degraded_latents,
+        num_steps or config.sample_steps, window or config.window, config.overlap if overlap is None else overlap,
+        config.strength if strength is None else strength, config.seed if seed is None else seed,
+    )
+    return decode_latents(restorer.autoencoder, latents)
+
+
+def generate_clip(
+    world_model: GenerativeModel,
+    reference: np.ndarray,  # (T,H,W,3) uint8 original-trajectory frames
+    structure: np.ndarray | None,  # (T,C,H,W) structure maps in the target cameras (dd2)
+    *,
+    num_steps: int | None = None,
+    window: int | None = None,
+    overlap: int | None = None,
+    seed: int = 0,
+) -> np.ndarray:  # (T,H,W,3) uint8
+    """Training-free novel-trajectory video from a pretrained world model (DriveDreamer4D)."""
+    if world_model.kind != "world_model":
+        raise RecondreamerError(f"generate_clip needs a pretrained world model, got a {world_model.kind} ({world_model.arch})")
+    _check_frames(world_model, reference, "reference frames")
+    structure_tensor = _prepare_structure(world_model, structure, reference.shape)
+    config = world_model.restore_config
+    reference_latents = encode_frames(world_model.autoencoder, reference)
+    latents = _sample_clip(
+        world_model, reference_latents, structure_tensor, None,
+        num_steps or world_model.diffusion_config.sample_steps, window or world_model.train_config.window,
+        config.overlap if overlap is None else overlap, 1.0, seed,
+    )
+    return decode_latents(world_model.autoencoder, latents)

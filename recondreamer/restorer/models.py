@@ -1,0 +1,119 @@
+"""Building models from checkpoints: autoencoder, world model, restorer (a world model + degraded input)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+
+import torch
+
+from recondreamer.errors import CheckpointError
+from recondreamer.restorer.autoencoder import Autoencoder
+from recondreamer.restorer.checkpoint import load_checkpoint
+from recondreamer.restorer.config import (
+    AutoencoderConfig,
+    DiffusionConfig,
+    MaskConfig,
+    RestoreConfig,
+    TrainConfig,
+    UNetConfig,
+    config_from_dict,
+    config_to_dict,
+)
+from recondreamer.restorer.diffusion import NoiseSchedule
+from recondreamer.restorer.unet import LatentUNet
+
+
+def autoencoder_from_payload(payload: dict) -> Autoencoder:
+    """An autoencoder from a checkpoint dict of kind autoencoder (or the one embedded in a model)."""
+    model = Autoencoder(config_from_dict(AutoencoderConfig, payload["config"]))
+    model.load_state_dict(payload["state"])
+    return model.eval().requires_grad_(False)
+
+
+def autoencoder_payload(autoencoder: Autoencoder) -> dict:
+    """The autoencoder as embedded in world-model and restorer checkpoints."""
+    return {"config": config_to_dict(autoencoder.config), "state": autoencoder.state_dict()}
+
+
+def load_autoencoder(path: str | os.PathLike) -> tuple[Autoencoder, dict]:
+    payload = load_checkpoint(path, "autoencoder")
+    return autoencoder_from_payload(payload), payload
+
+
+@dataclass
+class GenerativeModel:
+    """A world model or a restorer with everything needed to sample from it."""
+
+    kind: str  # "world_model" | "restorer"
+    arch: str
+    unet: LatentUNet
+    autoencoder: Autoencoder
+    schedule: NoiseSchedule
+    unet_config: UNetConfig
+    diffusion_config: DiffusionConfig
+    train_config: TrainConfig
+    structure_channels: tuple[str, ...]  # names of the structure-map channels (empty if unused)
+    frame_size: tuple[int, int]  # (H, W) the model was trained on
+    mask_config: MaskConfig | None = None
+    restore_config: RestoreConfig = dataclasses.field(default_factory=RestoreConfig)
+
+
+def model_config_dict(model: GenerativeModel) -> dict:
+    return {
+        "unet": config_to_dict(model.unet_config),
+        "diffusion": config_to_dict(model.diffusion_config),
+        "train": config_to_dict(model.train_config),
+        "structure_channels": list(model.structure_channels),
+        "frame_size": list(model.frame_size),
+        "masks": None if model.mask_config is None else config_to_dict(model.mask_config),
+        "restore": config_to_dict(model.restore_config),
+    }
+
+
+def model_from_payload(payload: dict) -> GenerativeModel:
+    config = payload["config"]
+    unet_config = config_from_dict(UNetConfig, config["unet"])
+    unet = LatentUNet(unet_config)
+    unet.load_state_dict(payload["state"])
+    diffusion_config = config_from_dict(DiffusionConfig, config["diffusion"])
+    return GenerativeModel(
+        kind=payload["kind"],
+        arch=payload["arch"],
+        unet=unet.eval(),
+        autoencoder=autoencoder_from_payload(payload["autoencoder"]),
+        schedule=NoiseSchedule(diffusion_config),
+        unet_config=unet_config,
+        diffusion_config=diffusion_config,
+        train_config=config_from_dict(TrainConfig, config["train"]),
+        structure_channels=tuple(config["structure_channels"]),
+        frame_size=tuple(config["frame_size"]),
+        mask_config=None if config.get("masks") is None else config_from_dict(MaskConfig, config["masks"]),
+        restore_config=config_from_dict(RestoreConfig, config.get("restore") or {}),
+    )
+
+
+def load_generative_model(path: str | os.PathLike, kind: str) -> GenerativeModel:
+    """Load a ``world_model`` or ``restorer`` checkpoint (CheckpointError on the wrong kind)."""
+    return model_from_payload(load_checkpoint(path, kind))
+
+
+def restorer_unet_from_world_model(world: GenerativeModel, arch: str) -> LatentUNet:
+    """The world model's UNet with a zero-initialised degraded-video input branch.
+
+    ``dd2_mask`` is fine-tuned from a ``dd2`` world model, every other arch from its own.
+    """
+    expected_world_arch = "dd2" if arch == "dd2_mask" else arch
+    if world.arch != expected_world_arch:
+        raise CheckpointError(f"restorer arch {arch!r} is fine-tuned from a {expected_world_arch!r} world model, got {world.arch!r}")
+    config = dataclasses.replace(world.unet_config, arch=arch, degraded_condition=True)
+    unet = LatentUNet(config)
+    missing, unexpected = unet.load_state_dict(world.unet.state_dict(), strict=False)
+    if unexpected or any(not key.startswith("degraded_in.") for key in missing):
+        raise CheckpointError(f"world model weights do not fit the restorer: missing {missing}, unexpected {unexpected}")
+    return unet
+
+
+def count_parameters(module: torch.nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())

@@ -1,0 +1,387 @@
+"""Training jobs: autoencoder, world-model pretraining, restorer fine-tuning.
+
+Every job is resumable: it writes ``OUT.resume.pt`` (kind ``training_state``: model, optimiser,
+step and random-generator states) every ``checkpoint_every`` steps, continues from it when
+started again with the same configuration, and deletes it once the final checkpoint is written.
+Progress (step, loss, ms/step, ETA) is logged every ``log_every`` steps.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from recondreamer.errors import CheckpointError, RecondreamerError
+from recondreamer.restorer.autoencoder import Autoencoder, frames_to_tensor
+from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
+from recondreamer.restorer.config import (
+    AutoencoderConfig,
+    DiffusionConfig,
+    MaskConfig,
+    RestoreConfig,
+    TrainConfig,
+    UNetConfig,
+    config_to_dict,
+)
+from recondreamer.restorer.data import Sequence
+from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss
+from recondreamer.restorer.masks import sample_clip_masks
+from recondreamer.restorer.models import (
+    GenerativeModel,
+    autoencoder_payload,
+    count_parameters,
+    model_config_dict,
+    restorer_unet_from_world_model,
+)
+from recondreamer.restorer.unet import LatentUNet
+
+LOG = logging.getLogger(__name__)
+
+
+def resume_path(out: str | os.PathLike) -> Path:
+    out = Path(out)
+    return out.with_name(out.name + ".resume.pt")
+
+
+def learning_rate_at(step: int, total: int, base: float, warmup: int) -> float:
+    """Linear warm-up, then cosine decay to 10% of the base rate."""
+    if step < warmup:
+        return base * (step + 1) / warmup
+    progress = (step - warmup) / max(1, total - warmup)
+    return base * (0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * progress)))
+
+
+class ProgressLog:
+    """Running-mean loss, ms/step (wall and process CPU) and ETA every ``every`` steps.
+
+    CPU ms/step is what a step costs on an idle core; wall ms/step also counts the time other
+    jobs on a shared machine take from this one.
+    """
+
+    def __init__(self, name: str, total: int, start: int, every: int):
+        self.name, self.total, self.every = name, total, every
+        self.start_step, self.start_time, self.start_cpu = start, time.perf_counter(), time.process_time()
+        self.losses: list[float] = []
+
+    def update(self, step: int, loss: float) -> None:
+        self.losses.append(loss)
+        done = step + 1
+        if done % self.every == 0 or done == self.total:
+            ms = self.ms_per_step(done)
+            eta = ms * (self.total - done) / 1000.0
+            LOG.info(
+                "%s step %d/%d loss %.5f  %.0f ms/step (%.0f CPU ms/step)  ETA %dm%02ds",
+                self.name, done, self.total, float(np.mean(self.losses)), ms, self.cpu_ms_per_step(done), eta // 60, eta % 60,
+            )
+            self.losses.clear()
+
+    def ms_per_step(self, done: int) -> float:
+        return 1000.0 * (time.perf_counter() - self.start_time) / max(1, done - self.start_step)
+
+    def cpu_ms_per_step(self, done: int) -> float:
+        return 1000.0 * (time.process_time() - self.start_cpu) / max(1, done - self.start_step)
+
+
+def run_training_loop(
+    name: str,
+    module: torch.nn.Module,
+    loss_fn: Callable[[np.random.Generator, torch.Generator], torch.Tensor],
+    steps: int,
+    learning_rate: float,
+    warmup: int,
+    out: str | os.PathLike,
+    job_identity: dict,
+    checkpoint_every: int,
+    log_every: int,
+    seed: int,
+    weight_decay: float = 0.0,
+) -> dict:
+    """Optimise ``module`` with AdamW for ``steps`` steps, resuming from ``OUT.resume.pt``.
+
+    ``job_identity`` (arch and configs) must match the resume file's for it to be used; the
+    step count may differ (a job can be extended or cut short on resume: the learning-rate
+    schedule then follows the new total). Returns {"final_loss", "ms_per_step", "steps"}.
+    """
+    optimizer = torch.optim.AdamW(module.parameters(), lr=learning_rate, weight_decay=weight_decay)
+    rng = np.random.default_rng(seed)
+    generator = torch.Generator().manual_seed(seed)
+    start = 0
+    state_file = resume_path(out)
+    if state_file.exists():
+        state = load_checkpoint(state_file, "training_state")
+        if _without_steps(state["config"]) != _without_steps(job_identity):
+            raise CheckpointError(f"{state_file}: resume file of a different job configuration; delete it to start afresh")
+        module.load_state_dict(state["state"])
+        optimizer.load_state_dict(state["optimizer"])
+        rng.bit_generator.state = state["numpy_rng"]
+        generator.set_state(state["torch_rng"])
+        start = state["step"]
+        LOG.info("%s: resuming from %s at step %d", name, state_file, start)
+    progress = ProgressLog(name, steps, start, log_every)
+    recent: list[float] = []
+    module.train()
+    for step in range(start, steps):
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate_at(step, steps, learning_rate, warmup)
+        loss = loss_fn(rng, generator)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
+        optimizer.step()
+        recent = (recent + [loss.item()])[-50:]
+        progress.update(step, loss.item())
+        if (step + 1) % checkpoint_every == 0 and step + 1 < steps:
+            save_checkpoint(
+                state_file, "training_state", job_identity.get("arch", ""), job_identity, module.state_dict(),
+                optimizer=optimizer.state_dict(), numpy_rng=rng.bit_generator.state,
+                torch_rng=generator.get_state(), step=step + 1,
+            )
+    module.eval()
+    return {
+        "final_loss": float(np.mean(recent)) if recent else float("nan"),
+        "ms_per_step": progress.ms_per_step(steps),
+        "cpu_ms_per_step": progress.cpu_ms_per_step(steps),
+        "steps": steps,
+    }
+
+
+def _without_steps(identity: dict) -> dict:
+    """A job identity without its step counts (every nested ``steps`` entry removed)."""
+    return {k: _without_steps(v) if isinstance(v, dict) else v for k, v in identity.items() if k != "steps"}
+
+
+def finish_job(out: str | os.PathLike) -> None:
+    state_file = resume_path(out)
+    if state_file.exists():
+        state_file.unlink()
+
+
+# ----------------------------------------------------------------------------------------------
+# Autoencoder
+# ----------------------------------------------------------------------------------------------
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR in dB of two uint8 arrays of equal shape."""
+    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
+    return float("inf") if mse == 0 else float(10.0 * np.log10(255.0**2 / mse))
+
+
+def split_heldout(scene_frames: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Training and held-out frames: the last scene is held out when there are several,
+    otherwise every 8th frame."""
+    if len(scene_frames) >= 2:
+        return np.concatenate(scene_frames[:-1]), scene_frames[-1]
+    frames = scene_frames[0]
+    held = np.zeros(len(frames), dtype=bool)
+    held[::8] = True
+    return frames[~held], frames[held]
+
+
+def train_autoencoder(scene_frames: list[np.ndarray], out: str | os.PathLike, config: AutoencoderConfig, seed: int = 0) -> dict:
+    """Train on random crops of corpus frames (L1 + small SSIM term); report held-out PSNR."""
+    import kornia
+
+    train_frames, heldout = split_heldout(scene_frames)
+    height, width = train_frames.shape[1:3]
+    f = config.downsample_factor
+    if height % f or width % f or min(height, width) < config.crop_size:
+        raise RecondreamerError(f"corpus frame size {width}x{height} must be divisible by {f} and at least {config.crop_size} px")
+    torch.manual_seed(seed)
+    model = Autoencoder(config)
+    LOG.info("autoencoder: %d parameters, %d training and %d held-out frames", count_parameters(model), len(train_frames), len(heldout))
+
+    def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
+        index = rng.integers(len(train_frames), size=config.batch_size)
+        top = rng.integers(0, height - config.crop_size + 1, size=config.batch_size)
+        left = rng.integers(0, width - config.crop_size + 1, size=config.batch_size)
+        crops = np.stack([train_frames[i, y : y + config.crop_size, x : x + config.crop_size] for i, y, x in zip(index, top, left)])
+        images = frames_to_tensor(crops)
+        recon = model(images)
+        l1 = torch.mean(torch.abs(recon - images))
+        ssim = kornia.losses.ssim_loss((recon + 1) / 2, (images + 1) / 2, window_size=7)
+        return l1 + config.ssim_weight * ssim
+
+    identity = {"kind": "autoencoder", "config": config_to_dict(config), "seed": seed}
+    stats = run_training_loop(
+        "autoencoder", model, loss_fn, config.steps, config.learning_rate, 50, out, identity,
+        checkpoint_every=200, log_every=50, seed=seed,
+    )
+    sample = train_frames[np.random.default_rng(seed).choice(len(train_frames), size=min(64, len(train_frames)), replace=False)]
+    model.set_latent_statistics(frames_to_tensor(sample))
+    heldout_psnr = autoencoder_psnr(model, heldout)
+    LOG.info("autoencoder: held-out reconstruction PSNR %.2f dB", heldout_psnr)
+    metrics = dict(stats, heldout_psnr=heldout_psnr, frame_size=[height, width])
+    save_checkpoint(out, "autoencoder", "autoencoder", config_to_dict(config), model.state_dict(), metrics=metrics)
+    finish_job(out)
+    return metrics
+
+
+@torch.no_grad()
+def autoencoder_psnr(model: Autoencoder, frames: np.ndarray) -> float:
+    """Mean per-frame PSNR of decode(encode(frames)) against frames (N,H,W,3) uint8."""
+    from recondreamer.restorer.autoencoder import decode_latents, encode_frames
+
+    recon = decode_latents(model, encode_frames(model, frames))
+    return float(np.mean([psnr(a, b) for a, b in zip(recon, frames)]))
+
+
+# ----------------------------------------------------------------------------------------------
+# Diffusion batches
+# ----------------------------------------------------------------------------------------------
+
+
+def sample_batch(
+    sequences: list[Sequence],
+    rng: np.random.Generator,
+    train: TrainConfig,
+    downsample_factor: int,
+    with_structure: bool,
+    with_degraded: bool,
+    masks: MaskConfig | None = None,
+    autoencoder: Autoencoder | None = None,
+) -> dict:
+    """A batch of random clips, randomly cropped in latent space.
+
+    Returns target (B,T,c,h,w), reference (B,c,h,w), structure (B,T,S,h*f,w*f) or None,
+    degraded (B,T,c,h,w) or None. The reference is the original frame at the clip start for world
+    models, and the degraded frame at the clip start for restorers: a restorer must not see the
+    ground truth it is asked to produce, and at inference its input is all it has. With
+    ``masks``, the degraded frames are masked in pixel space and re-encoded (``z = E(V * M)``).
+    """
+    window = min(train.window, min(s.num_frames for s in sequences))
+    latent_h, latent_w = sequences[0].target.shape[-2:]
+    crop_h = min(train.crop[0] or latent_h, latent_h)
+    crop_w = min(train.crop[1] or latent_w, latent_w)
+    f = downsample_factor
+    targets, references, structures, degraded = [], [], [], []
+    for _ in range(train.batch_size):
+        seq = sequences[rng.integers(len(sequences))]
+        start = int(rng.integers(0, seq.num_frames - window + 1))
+        frames = slice(start, start + window)
+        y, x = int(rng.integers(0, latent_h - crop_h + 1)), int(rng.integers(0, latent_w - crop_w + 1))
+        rows, cols = slice(y, y + crop_h), slice(x, x + crop_w)
+        targets.append(seq.target[frames, :, rows, cols])
+        if not with_degraded:
+            references.append(seq.reference[start, :, rows, cols])
+        if with_structure:
+            pixel_rows, pixel_cols = slice(y * f, (y + crop_h) * f), slice(x * f, (x + crop_w) * f)
+            structures.append(torch.from_numpy(seq.structure[frames, :, pixel_rows, pixel_cols]))
+        if with_degraded:
+            stage = int(rng.integers(seq.degraded.shape[0]))
+            if masks is not None:
+                pixels = seq.degraded_frames[stage, frames]  # (T,H,W,3)
+                keep = sample_clip_masks(
+                    window, pixels.shape[1], pixels.shape[2], masks, rng, seq.vanishing[frames],
+                    None if seq.sky_masks is None else seq.sky_masks[frames],
+                )
+                latents = seq.degraded[stage, frames].clone()
+                masked = np.flatnonzero(~keep.all(axis=(1, 2)))  # frames with a mask: re-encode only those
+                if masked.size:
+                    with torch.no_grad():
+                        latents[masked] = autoencoder.encode(frames_to_tensor(pixels[masked] * keep[masked, ..., None]))
+                degraded.append(latents[:, :, rows, cols])
+            else:
+                degraded.append(seq.degraded[stage, frames, :, rows, cols])
+            references.append(degraded[-1][0])
+    return {
+        "target": torch.stack(targets),
+        "reference": torch.stack(references),
+        "structure": torch.stack(structures).float() / 255.0 if with_structure else None,
+        "degraded": torch.stack(degraded) if with_degraded else None,
+    }
+
+
+def unet_loss(unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator) -> torch.Tensor:
+    """The diffusion loss (epsilon MSE at a random step per clip) of one batch."""
+
+    def model_fn(noisy: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
+        return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])
+
+    return diffusion_loss(model_fn, schedule, batch["target"], generator)
+
+
+# ----------------------------------------------------------------------------------------------
+# World models and restorers
+# ----------------------------------------------------------------------------------------------
+
+
+def pretrain_world_model(
+    sequences: list[Sequence],
+    autoencoder: Autoencoder,
+    unet_config: UNetConfig,
+    diffusion_config: DiffusionConfig,
+    train: TrainConfig,
+    structure_channels: tuple[str, ...],
+    frame_size: tuple[int, int],
+    out: str | os.PathLike,
+) -> dict:
+    """Learn to generate corpus clips from a reference frame (and structure maps for dd2)."""
+    torch.manual_seed(train.seed)
+    unet = LatentUNet(unet_config)
+    schedule = NoiseSchedule(diffusion_config)
+    LOG.info("world model %s: %d parameters, %d sequences", unet_config.arch, count_parameters(unet), len(sequences))
+    model = GenerativeModel(
+        kind="world_model", arch=unet_config.arch, unet=unet, autoencoder=autoencoder, schedule=schedule,
+        unet_config=unet_config, diffusion_config=diffusion_config, train_config=train,
+        structure_channels=structure_channels, frame_size=frame_size,
+    )
+    config = model_config_dict(model)
+
+    def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
+        batch = sample_batch(sequences, rng, train, unet_config.downsample_factor, unet_config.uses_structure, False)
+        return unet_loss(unet, schedule, batch, generator)
+
+    stats = run_training_loop(
+        f"pretrain {unet_config.arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
+        {"kind": "world_model", "arch": unet_config.arch, **config}, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
+    )
+    save_checkpoint(out, "world_model", unet_config.arch, config, unet.state_dict(), autoencoder=autoencoder_payload(autoencoder), metrics=stats)
+    finish_job(out)
+    return stats
+
+
+def train_restorer(
+    world: GenerativeModel,
+    arch: str,
+    sequences: list[Sequence],
+    train: TrainConfig,
+    masks: MaskConfig | None,
+    restore: RestoreConfig,
+    out: str | os.PathLike,
+    world_model_path: str,
+) -> dict:
+    """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition."""
+    torch.manual_seed(train.seed)
+    unet = restorer_unet_from_world_model(world, arch)
+    model = GenerativeModel(
+        kind="restorer", arch=arch, unet=unet, autoencoder=world.autoencoder, schedule=world.schedule,
+        unet_config=unet.config, diffusion_config=world.diffusion_config, train_config=train,
+        structure_channels=world.structure_channels, frame_size=world.frame_size, mask_config=masks, restore_config=restore,
+    )
+    config = model_config_dict(model)
+    LOG.info("restorer %s: %d parameters, %d pair sequences, masks %s", arch, count_parameters(unet), len(sequences), masks)
+
+    def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
+        batch = sample_batch(
+            sequences, rng, train, unet.config.downsample_factor, unet.config.uses_structure, True, masks, world.autoencoder
+        )
+        return unet_loss(unet, world.schedule, batch, generator)
+
+    stats = run_training_loop(
+        f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
+        {"kind": "restorer", "arch": arch, **config}, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
+    )
+    save_checkpoint(
+        out, "restorer", arch, config, unet.state_dict(), autoencoder=autoencoder_payload(world.autoencoder), metrics=stats,
+        world_model=str(world_model_path), training_scenes=sorted({seq.scene_id for seq in sequences}),
+    )
+    finish_job(out)
+    return stats
