@@ -51,7 +51,7 @@ def register(subparsers) -> None:
     p.add_argument("--models", type=Path, default=None, help="directory written by train-eval-models")
     p.add_argument("--detector", type=Path, default=None, help="vehicle detector model file (overrides --models)")
     p.add_argument("--lane-model", type=Path, default=None, help="lane segmenter model file (overrides --models)")
-    p.add_argument("--fid-model", type=Path, default=None, help="FID feature network file (overrides --models)")
+    p.add_argument("--fid-model", type=Path, default=None, help="FID feature network file (overrides --models): a train-eval-models fid_features.pt, or a local copy of pytorch-fid's InceptionV3 weights (pt_inception-2015-12-05-6726825d.pth) for the published FID's 2048-d pool features")
     p.add_argument("--min-lidar-points", type=int, default=10, help="NTA-IoU ground truth keeps vehicles with at least this many LiDAR points (default 10)")
     p.add_argument("--score-threshold", type=float, default=0.5, help="detector confidence threshold (default 0.5)")
     p.add_argument("--out", required=True, type=Path, help="metrics JSON file to write")
@@ -143,7 +143,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     document, features = evaluate_scene(args.scene, list(zip(args.trajectory, args.renders)), models, args.min_lidar_points, args.score_threshold)
     features_out = args.features_out or args.out.with_suffix(".features.npz")
     document["settings"]["features_file"] = str(features_out)
-    write_features(features_out, document["scene"]["scene_id"], features, models.features.sha256)
+    write_features(features_out, document["scene"]["scene_id"], features, models.features)
     write_json_atomic(args.out, document)
     log.info("wrote %s", args.out)
     return 0

@@ -22,6 +22,13 @@ FID_FEATURES_NOTE = (
 )
 
 
+def fid_feature_network(model: inference.LoadedModel) -> str:
+    """What the FID features of ``model`` are, for every output that reports FID."""
+    if inference.is_inception(model):
+        return f"pytorch-fid InceptionV3 (local file, sha256 {model.sha256}): 2048-d pool features, the network of published FIDs"
+    return FID_FEATURES_NOTE
+
+
 @dataclass
 class EvalModels:
     detector: inference.LoadedModel
@@ -32,12 +39,13 @@ class EvalModels:
         return {
             "vehicle_detector": self.detector.describe(),
             "lane_segmenter": self.lanes.describe(),
-            "fid_features": {**self.features.describe(), "feature_dim": self.features.module.config.feature_dim, "note": FID_FEATURES_NOTE},
+            "fid_features": {**self.features.describe(), "feature_dim": self.features.module.config.feature_dim, "note": fid_feature_network(self.features)},
         }
 
 
 def load_eval_models(models_dir: str | Path | None, detector: str | Path | None = None, lane_model: str | Path | None = None, fid_model: str | Path | None = None) -> EvalModels:
-    """The three models from ``models_dir`` (train-eval-models output), each overridable by a file."""
+    """The three models from ``models_dir`` (train-eval-models output), each overridable by a file;
+    ``fid_model`` may also be a pytorch-fid InceptionV3 state_dict."""
     def pick(kind: str, override):
         if override is not None:
             return Path(override)
@@ -48,7 +56,7 @@ def load_eval_models(models_dir: str | Path | None, detector: str | Path | None 
     return EvalModels(
         detector=inference.load_model(pick("vehicle_detector", detector), "vehicle_detector"),
         lanes=inference.load_model(pick("lane_segmenter", lane_model), "lane_segmenter"),
-        features=inference.load_model(pick("fid_features", fid_model), "fid_features"),
+        features=inference.load_fid_model(pick("fid_features", fid_model)),
     )
 
 
@@ -164,7 +172,7 @@ def evaluate_scene(scene_dir: str | Path, renders: list[tuple[str, str | Path]],
             "renders": {name: str(Path(directory)) for name, directory in renders},
             "models": models.describe(),
             "fid_reference": "ground-truth frames of the original trajectory",
-            "fid_feature_network": FID_FEATURES_NOTE,
+            "fid_feature_network": fid_feature_network(models.features),
             "nta_iou": {
                 "min_lidar_points": min_lidar_points,
                 "detector_score_threshold": score_threshold,
@@ -184,13 +192,13 @@ def evaluate_scene(scene_dir: str | Path, renders: list[tuple[str, str | Path]],
     return document, features
 
 
-def write_features(path: str | Path, scene_id: str, features: dict[str, np.ndarray], model_sha256: str) -> None:
+def write_features(path: str | Path, scene_id: str, features: dict[str, np.ndarray], model: inference.LoadedModel) -> None:
     """FID features beside a metrics file, so that ``pooled_fid`` can pool them over scenes."""
     import io
 
     from recondreamer.io import write_bytes_atomic
 
-    arrays = {"scene_id": np.array(scene_id), "feature_model_sha256": np.array(model_sha256)}
+    arrays = {"scene_id": np.array(scene_id), "feature_model_sha256": np.array(model.sha256), "feature_network": np.array(fid_feature_network(model))}
     arrays.update({("reference" if key == "reference" else f"render:{key}"): value for key, value in features.items()})
     buffer = io.BytesIO()
     np.savez(buffer, **arrays)
@@ -199,7 +207,7 @@ def write_features(path: str | Path, scene_id: str, features: dict[str, np.ndarr
 
 def pooled_fid(feature_files: list[str | Path]) -> dict:
     """FID of all renders of several evaluations against all their reference frames (one set per scene)."""
-    renders, references, scenes, models = [], [], set(), set()
+    renders, references, scenes, models, networks = [], [], set(), set(), set()
     for path in feature_files:
         path = Path(path)
         if not path.is_file():
@@ -211,6 +219,7 @@ def pooled_fid(feature_files: list[str | Path]) -> dict:
         if "reference" not in data or "feature_model_sha256" not in data:
             raise RecondreamerError(f"{path}: not a feature file written by 'recondreamer evaluate'")
         models.add(str(data["feature_model_sha256"]))
+        networks.add(str(data["feature_network"]) if "feature_network" in data else FID_FEATURES_NOTE)  # older files: corpus network only
         scene_id = str(data["scene_id"])
         if scene_id not in scenes:
             references.append(data["reference"])
@@ -221,4 +230,4 @@ def pooled_fid(feature_files: list[str | Path]) -> dict:
     if not renders:
         raise RecondreamerError("no rendered-frame features in the given files")
     pooled = frechet.fid_from_features(np.concatenate(renders), np.concatenate(references))
-    return {**pooled, "num_scenes": len(scenes), "feature_model_sha256": models.pop(), "files": [str(p) for p in feature_files], "note": FID_FEATURES_NOTE}
+    return {**pooled, "num_scenes": len(scenes), "feature_model_sha256": models.pop(), "files": [str(p) for p in feature_files], "fid_feature_network": networks.pop()}

@@ -4,6 +4,9 @@ A model file is a torch checkpoint ``{"format": "recondreamer-eval-model", "vers
 "kind": ..., "config": {...}, "state_dict": ..., "training": {...}}``. Frames are resized to
 the network's input size (antialiased bilinear) and outputs are mapped back to the frame size,
 so the same model scores renders at any resolution.
+
+The FID feature network may instead be a user's local copy of pytorch-fid's InceptionV3 weights
+(a plain state_dict, see ``inception.py``); ``load_fid_model`` tells the two apart.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import torch
 import torch.nn.functional as F
 
 from recondreamer.errors import CheckpointError
+from recondreamer.evaluation.inception import INCEPTION_STATE_DICT_KEY, FIDInceptionV3
 from recondreamer.evaluation.models import MODEL_CONFIGS, config_from_dict, config_to_dict
 from recondreamer.io import atomic_path
 
@@ -27,6 +31,7 @@ MODEL_FILES = {
     "lane_segmenter": "lane_segmenter.pt",
     "fid_features": "fid_features.pt",
 }
+INCEPTION_KIND = "fid_inception"  # a user's pytorch-fid InceptionV3 weights in place of fid_features
 
 
 @dataclass
@@ -63,15 +68,16 @@ def save_model(path: str | Path, kind: str, module: torch.nn.Module, training: d
         torch.save(payload, tmp)
 
 
-def load_model(path: str | Path, kind: str) -> LoadedModel:
-    """Load an evaluation model file of the given kind; CheckpointError naming the file otherwise."""
-    path = Path(path)
+def _read_checkpoint(path: Path, missing_hint: str):
     if not path.is_file():
-        raise CheckpointError(f"{path}: evaluation model file not found (train it with 'recondreamer train-eval-models')")
+        raise CheckpointError(f"{path}: {missing_hint}")
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        return torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # torch raises many types for corrupt or foreign files
         raise CheckpointError(f"{path}: not a readable torch checkpoint ({error})") from None
+
+
+def _model_from_payload(path: Path, payload, kind: str) -> LoadedModel:
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not a recondreamer evaluation model file")
     if payload.get("version") != FORMAT_VERSION:
@@ -84,6 +90,41 @@ def load_model(path: str | Path, kind: str) -> LoadedModel:
     module.load_state_dict(payload["state_dict"])
     module.eval()
     return LoadedModel(kind, module, path, file_sha256(path), payload.get("training", {}))
+
+
+def load_model(path: str | Path, kind: str) -> LoadedModel:
+    """Load an evaluation model file of the given kind; CheckpointError naming the file otherwise."""
+    path = Path(path)
+    return _model_from_payload(path, _read_checkpoint(path, "evaluation model file not found (train it with 'recondreamer train-eval-models')"), kind)
+
+
+def is_inception(model: LoadedModel) -> bool:
+    return model.kind == INCEPTION_KIND
+
+
+def load_fid_model(path: str | Path) -> LoadedModel:
+    """The FID feature network in ``path``: a recondreamer ``fid_features`` model file, or a
+    pytorch-fid InceptionV3 state_dict (``pt_inception-2015-12-05-6726825d.pth``), told apart
+    by the Inception layer names."""
+    path = Path(path)
+    payload = _read_checkpoint(
+        path, "FID feature model file not found (train it with 'recondreamer train-eval-models', or name a local copy of pytorch-fid's InceptionV3 weights)"
+    )
+    if isinstance(payload, dict) and INCEPTION_STATE_DICT_KEY in payload:
+        module = FIDInceptionV3()
+        try:
+            module.load_state_dict(payload, strict=True)
+        except RuntimeError as error:  # missing/unexpected keys or wrong shapes, listed by torch
+            details = " ".join(str(error).split())  # torch lists the keys on several lines; the CLI prints one
+            raise CheckpointError(f"{path}: an Inception state_dict, but not pytorch-fid's FID InceptionV3 ({details})") from None
+        module.eval()
+        return LoadedModel(INCEPTION_KIND, module, path, file_sha256(path), {"source": "user-supplied pytorch-fid InceptionV3 weights"})
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise CheckpointError(
+            f"{path}: neither a recondreamer FID feature model (train-eval-models) nor a pytorch-fid InceptionV3 "
+            f"state_dict (no {INCEPTION_STATE_DICT_KEY!r} key)"
+        )
+    return _model_from_payload(path, payload, "fid_features")
 
 
 def images_to_tensor(images: np.ndarray, width: int, height: int) -> torch.Tensor:  # (N,H,W,3) uint8 -> (N,3,h,w)
@@ -130,7 +171,13 @@ def segment_lanes(model: torch.nn.Module, images: np.ndarray, batch_size: int = 
 
 
 @torch.no_grad()
-def fid_features(model: torch.nn.Module, images: np.ndarray, batch_size: int = 16) -> np.ndarray:  # -> (N,D) float64
-    config = model.config
-    features = [model.features(images_to_tensor(chunk, config.input_width, config.input_height)) for chunk in _batches(images, batch_size)]
+def fid_features(model: torch.nn.Module, images: np.ndarray, batch_size: int = 16) -> np.ndarray:  # (N,H,W,3) uint8 -> (N,D) float64
+    """One feature vector per frame: the corpus-trained FeatureNet, or InceptionV3's 2048-d pool."""
+    if isinstance(model, FIDInceptionV3):
+        # pytorch-fid's input: the frame at its own size in [0,1]; the network resizes to 299x299 itself.
+        tensors = (torch.from_numpy(np.ascontiguousarray(chunk)).permute(0, 3, 1, 2).float() / 255.0 for chunk in _batches(images, batch_size))
+        features = [model(tensor) for tensor in tensors]
+    else:
+        config = model.config
+        features = [model.features(images_to_tensor(chunk, config.input_width, config.input_height)) for chunk in _batches(images, batch_size)]
     return torch.cat(features).double().numpy()
