@@ -11,6 +11,7 @@ import argparse
 import math
 import time
 
+import recondreamer  # noqa: F401  (first: sets OMP_WAIT_POLICY before torch loads OpenMP)
 import torch
 
 from recondreamer.splat import rasterize

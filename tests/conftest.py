@@ -4,6 +4,8 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
 
+import recondreamer  # noqa: E402,F401  (sets OMP_WAIT_POLICY before torch loads OpenMP)
+
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
