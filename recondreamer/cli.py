@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "recondreamer.sources.synthetic.commands",
     "recondreamer.recon.commands",
     "recondreamer.restorer.commands",
+    "recondreamer.methods.commands",
     "recondreamer.evaluation.commands",
     "recondreamer.report.commands",
 )

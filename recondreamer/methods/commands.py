@@ -1,0 +1,116 @@
+"""Sub-commands ``train-recondreamer`` (PDUS loop) and ``train-dd4d`` (DriveDreamer4D baseline)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from recondreamer.recon.config import MODEL_TYPES, PRESETS
+
+log = logging.getLogger(__name__)
+
+
+def _add_recon_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scene", required=True, metavar="DIR", help="scene directory (docs/scene-format.md)")
+    parser.add_argument("--model", required=True, choices=MODEL_TYPES, help="reconstruction backbone")
+    parser.add_argument("--out", required=True, metavar="RUN", help="run directory to create or resume (RUN/model.pt as train-recon)")
+    parser.add_argument("--preset", default="default", choices=PRESETS,
+                        help="reconstruction size preset: quick (tests), default (CPU), paper (GPU, 50k iterations)")
+    parser.add_argument("--iterations", type=int, default=None, help="override the preset's number of iterations")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (reconstruction and sampling)")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--backend", default="auto", choices=("auto", "torch", "cpu", "gsplat"), help="rasteriser backend")
+    parser.add_argument("--device", default="cpu", help="torch device of the reconstruction (cpu or cuda)")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    recon = subparsers.add_parser(
+        "train-recondreamer",
+        help="ReconDreamer: train a reconstruction with online DriveRestorer restoration and PDUS",
+        description="Train a reconstruction on the original frames; every S steps widen the novel trajectory "
+        "by --stride metres (up to --max-offset), render it with the current model, restore it with DriveRestorer "
+        "and add it to the training data (Algorithm 1 weights, 50/50 original/novel, depth-free on novel frames). "
+        "Writes RUN/model.pt like train-recon, RUN/updates/update_KK/{rendered,restored}/ and RUN/pdus.json; "
+        "re-running after a kill resumes.",
+    )
+    _add_recon_options(recon)
+    recon.add_argument("--restorer", required=True, metavar="CKPT", help="DriveRestorer checkpoint (train-restorer output)")
+    recon.add_argument("--stride", required=True, type=float, metavar="DY", help="PDUS stride in metres (6 = one jump to 6 m, no PDUS)")
+    recon.add_argument("--update-every", type=int, default=None, metavar="S",
+                       help="training steps between updates (default: iterations / 5, i.e. four updates)")
+    recon.add_argument("--max-offset", type=float, default=6.0, help="largest lateral offset in metres (default 6)")
+    recon.add_argument("--restore-steps", type=int, default=None, help="DDIM steps of the restorer (default: its checkpoint's)")
+    recon.add_argument("--restore-strength", type=float, default=None,
+                       help="restorer sampling strength in (0, 1]: 1 starts from pure noise, less from the noised render "
+                       "(default: its checkpoint's)")
+    recon.set_defaults(func=run_train_recondreamer)
+
+    dd4d = subparsers.add_parser(
+        "train-dd4d",
+        help="DriveDreamer4D baseline: generate novel-trajectory videos once, train on original + generated",
+        description="Generate shift@3, shift@6 and lane_change videos with the pretrained dd2 world model, then train "
+        "the reconstruction on original + generated frames (50/50, depth-free on generated), no updates. Writes "
+        "RUN/model.pt like train-recon and RUN/generated/<trajectory>/; re-running after a kill resumes.",
+    )
+    _add_recon_options(dd4d)
+    dd4d.add_argument("--world-model", required=True, metavar="CKPT", help="pretrained dd2 world-model checkpoint")
+    dd4d.add_argument("--trajectories", default="shift@3,shift@6,lane_change",
+                      help="comma-separated novel trajectories to generate (default: shift@3,shift@6,lane_change)")
+    dd4d.add_argument("--generate-steps", type=int, default=None, help="DDIM steps of generation (default: the checkpoint's)")
+    dd4d.set_defaults(func=run_train_dd4d)
+
+
+def _config(args: argparse.Namespace):
+    import torch
+
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.recon.config import make_config
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    overrides = {"seed": args.seed, "backend": args.backend, "device": args.device}
+    if args.iterations is not None:
+        if args.iterations < 1:
+            raise RecondreamerError(f"--iterations must be at least 1, got {args.iterations}")
+        overrides["iterations"] = args.iterations
+    return make_config(args.model, args.preset, **overrides)
+
+
+def run_train_recondreamer(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.methods.loop import train_recondreamer
+    from recondreamer.methods.pdus import PdusSchedule
+    from recondreamer.restorer.inference import load_restorer
+    from recondreamer.scene import load_scene
+
+    config = _config(args)
+    if args.restore_strength is not None and not 0.0 < args.restore_strength <= 1.0:
+        raise RecondreamerError(f"--restore-strength must lie in (0, 1], got {args.restore_strength}")
+    schedule = PdusSchedule.for_iterations(args.stride, config.iterations, args.update_every, args.max_offset)
+    scene = load_scene(args.scene)
+    restorer = load_restorer(args.restorer)
+    model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_steps,
+                               restorer_path=str(Path(args.restorer).resolve()), restore_strength=args.restore_strength)
+    log.info("done: ReconDreamer %s (stride %g m) with %d Gaussians in %s", args.model, args.stride,
+             len(model.gaussians), args.out)
+    return 0
+
+
+def run_train_dd4d(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.methods.dd4d import train_dd4d
+    from recondreamer.restorer.inference import load_world_model
+    from recondreamer.scene import load_scene
+
+    config = _config(args)
+    trajectories = tuple(name.strip() for name in args.trajectories.split(",") if name.strip())
+    if not trajectories:
+        raise RecondreamerError("--trajectories: give at least one trajectory name")
+    scene = load_scene(args.scene)
+    world_model = load_world_model(args.world_model)
+    if world_model.arch != "dd2":
+        raise RecondreamerError(f"{args.world_model}: DriveDreamer4D needs the dd2 world model, got {world_model.arch!r}")
+    model = train_dd4d(scene, config, args.out, world_model, trajectories, args.generate_steps)
+    log.info("done: DriveDreamer4D %s with %d Gaussians in %s", args.model, len(model.gaussians), args.out)
+    return 0
