@@ -44,15 +44,10 @@ from recondreamer.scene import load_scene, write_scene
 from recondreamer.scene.structure import STRUCTURE_CHANNELS
 from recondreamer.sources.synthetic import generate_segment
 
+# Small tensors: one torch thread each (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 ITERATIONS, EVERY = 24, 8  # updates before steps 8 and 16
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")

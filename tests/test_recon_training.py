@@ -27,18 +27,11 @@ from recondreamer.recon.trainer import Trainer
 from recondreamer.scene import load_scene, write_scene
 from recondreamer.sources.synthetic import generate_segment
 
+# Small tensors: one torch thread each (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 HELD_OUT = 6  # frame never shown to the street model
 ITERATIONS = 80
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """One torch thread: training steps are small, and on a shared 2-core machine a second
-    thread spends more time waiting at barriers than it saves."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")

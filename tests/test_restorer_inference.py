@@ -20,14 +20,8 @@ from recondreamer.restorer.inference import (
 )
 from recondreamer.restorer.models import autoencoder_payload, model_config_dict
 
-
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny tensors: one thread avoids OpenMP barrier stalls on the shared, busy 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+# Small tensors: one torch thread each (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_window_starts_cover_the_clip_and_end_on_its_last_frame():

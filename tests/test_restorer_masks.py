@@ -11,14 +11,9 @@ import torch
 from recondreamer.restorer.config import MaskConfig
 from recondreamer.restorer.masks import mask_regions, sample_clip_masks, sample_keep_mask, vanishing_point
 
+# Small tensors: one torch thread each (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny tensors: one thread avoids OpenMP barrier stalls on the shared, busy 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 H, W = 80, 120
 

@@ -17,15 +17,11 @@ from recondreamer.restorer.models import GenerativeModel, restorer_unet_from_wor
 from recondreamer.restorer.training import sample_batch, unet_loss
 from recondreamer.restorer.unet import LatentUNet
 
+# Small tensors: one torch thread each (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
 STRUCTURE = ("boxes", "lanes", "edges")
 
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny tensors: one thread avoids OpenMP barrier stalls on the shared, busy 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
 
 H, W = 32, 48  # pixels; latents 8x12
 

@@ -10,14 +10,8 @@ from recondreamer.cli import main
 from recondreamer.restorer.checkpoint import load_checkpoint
 from recondreamer.restorer.training import resume_path, run_training_loop
 
-
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny tensors: one thread avoids OpenMP barrier stalls on the shared, busy 2-core machine."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+# Small tensors: one torch thread each (tests/conftest.py).
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _blur(frames: np.ndarray) -> np.ndarray:  # (T,H,W,3) uint8 -> box-blurred copy
