@@ -179,6 +179,21 @@ class GaussianSceneModel(nn.Module, abc.ABC):
         model.gaussians.set_rows({**rows, **buffers})
         return model
 
+    @staticmethod
+    def background_state(
+        config: ReconConfig,
+        points: ScenePoints,
+        center: np.ndarray,
+        rng: np.random.Generator,
+    ) -> tuple[ScenePoints, dict[str, torch.Tensor], int]:
+        """(subsampled LiDAR points, their rows followed by the far shell's, far point count):
+        the start every backbone's ``initial_state`` builds on."""
+        points = subsample(points, config.init.max_lidar_points, rng)
+        rows, far_count = background_rows(
+            config, points.points, points.colors, center, rng
+        )
+        return points, rows, far_count
+
     @classmethod
     def initial_state(
         cls,
@@ -191,10 +206,7 @@ class GaussianSceneModel(nn.Module, abc.ABC):
         """(parameter rows, buffer rows, extra spec) from all coloured LiDAR ``points``.
 
         Default: one set of (subsampled) LiDAR points plus the far shell."""
-        points = subsample(points, config.init.max_lidar_points, rng)
-        rows, far_count = background_rows(
-            config, points.points, points.colors, center, rng
-        )
+        points, rows, far_count = cls.background_state(config, points, center, rng)
         return rows, {}, {"num_far_points": far_count}
 
 

@@ -20,9 +20,9 @@ import math
 import numpy as np
 import torch
 
-from recondreamer.recon.base import GaussianSceneModel, background_rows
+from recondreamer.recon.base import GaussianSceneModel
 from recondreamer.recon.config import ReconConfig
-from recondreamer.recon.init import ScenePoints, normalized_times, subsample
+from recondreamer.recon.init import ScenePoints, normalized_times
 
 # Far-shell points model distant static background: centred in time and practically eternal.
 FAR_LIFESPAN = 10.0
@@ -66,10 +66,7 @@ class PVGModel(GaussianSceneModel):
         center: np.ndarray,
         rng: np.random.Generator,
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict]:
-        points = subsample(points, config.init.max_lidar_points, rng)
-        rows, far_count = background_rows(
-            config, points.points, points.colors, center, rng
-        )
+        points, rows, far_count = cls.background_state(config, points, center, rng)
         frame_times = normalized_times(np.asarray(scene.timestamps, dtype=np.float64))
         peak = np.concatenate([frame_times[points.frames], np.full(far_count, 0.5)])
         lifespan = np.concatenate(

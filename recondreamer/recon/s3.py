@@ -19,9 +19,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from recondreamer.recon.base import GaussianSceneModel, background_rows
+from recondreamer.recon.base import GaussianSceneModel
 from recondreamer.recon.config import ModelConfig, ReconConfig
-from recondreamer.recon.init import ScenePoints, subsample
+from recondreamer.recon.init import ScenePoints
 
 PLANE_AXES = tuple(
     itertools.combinations(range(4), 2)
@@ -154,10 +154,7 @@ class S3Model(GaussianSceneModel):
         center: np.ndarray,
         rng: np.random.Generator,
     ) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor], dict]:
-        points = subsample(points, config.init.max_lidar_points, rng)
-        rows, far_count = background_rows(
-            config, points.points, points.colors, center, rng
-        )
+        points, rows, far_count = cls.background_state(config, points, center, rng)
         if len(points):
             low, high = (
                 np.percentile(points.points, 1, axis=0),

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from recondreamer.recon.base import GaussianSceneModel, background_rows
+from recondreamer.recon.base import GaussianSceneModel
 from recondreamer.recon.config import ModelConfig, ReconConfig
 from recondreamer.recon.gaussians import (
     initial_rows,
@@ -27,7 +27,6 @@ from recondreamer.recon.init import (
     knn_log_scales,
     normalized_times,
     points_in_box,
-    subsample,
 )
 from recondreamer.splat.projection import quats_to_rotmats
 
@@ -201,10 +200,7 @@ class StreetModel(GaussianSceneModel):
                     points.points[inside] - box.obj_to_world[:3, 3]
                 ) @ box.obj_to_world[:3, :3]
         background = points.subset(np.flatnonzero(owner < 0))
-        background = subsample(background, config.init.max_lidar_points, rng)
-        rows, far_count = background_rows(
-            config, background.points, background.colors, center, rng
-        )
+        background, rows, far_count = cls.background_state(config, background, center, rng)
         all_rows = [rows]
         owners = [np.full(rows["means"].shape[0], -1, dtype=np.int64)]
         for k in range(len(track_ids)):
