@@ -2,7 +2,8 @@
 
 Prints forward (no grad) and forward+backward milliseconds per call on a random scene of N
 Gaussians in front of the camera whose splats span about 0.5-4 px standard deviation, as a
-street scene seen at 240x160 would. Run: ``python benchmarks/rasterizer.py`` (options below).
+street scene seen at 240x160 would. Run: ``python benchmarks/rasterizer.py`` (options below);
+``--stages`` adds a per-stage breakdown of the CPU kernel's forward+backward.
 """
 
 from __future__ import annotations
@@ -68,6 +69,64 @@ def measure(backend: str, scene, width: int, height: int, repeats: int, device: 
     return time_call(forward, repeats), time_call(forward_backward, repeats)
 
 
+def stage_breakdown(scene, width: int, height: int, repeats: int) -> list[tuple[str, tuple[float, float]]]:
+    """The ``"cpu"`` backend's stages timed one at a time on the same inputs: (stage, (wall, CPU) ms).
+
+    Backward stages are timed with ``torch.autograd.grad(..., retain_graph=True)`` on a graph
+    built once; "glue" is the full forward+backward minus the stages (autograd engine, input
+    packing, background and depth normalisation, Python)."""
+    from recondreamer.splat.cpu_kernel import composite_cpu, project_cpu
+    from recondreamer.splat.validation import validate_inputs
+
+    means, quats, scales, opacities, colors, viewmat, K = scene
+    params = [t.clone().requires_grad_() for t in (means, quats, scales, opacities, colors)]
+    stages = [
+        (
+            "validate inputs",
+            time_call(
+                lambda: validate_inputs(means, quats, scales, opacities, colors, viewmat, K, width, height, None, "cpu"),
+                repeats,
+            ),
+        )
+    ]
+    projected, rgb = project_cpu(params[0], params[1], params[2], params[4], viewmat, K, width, height)
+    with torch.no_grad():
+        stages.append(
+            ("projection+SH fwd", time_call(lambda: project_cpu(means, quats, scales, colors, viewmat, K, width, height), repeats))
+        )
+    splats = [t.detach().requires_grad_() for t in (projected.means2d, projected.conics, rgb, projected.depths)]
+    visible_opacities = torch.where(projected.in_front, opacities, torch.zeros_like(opacities)).requires_grad_()
+    inputs = (splats[0], splats[1], splats[2], visible_opacities, splats[3])
+    with torch.no_grad():
+        stages.append(("composite fwd", time_call(lambda: composite_cpu(*inputs, width, height), repeats)))
+    images = composite_cpu(*inputs, width, height)
+    image_grads = [torch.rand_like(image) for image in images]
+    stages.append(
+        ("composite bwd", time_call(lambda: torch.autograd.grad(images, inputs, image_grads, retain_graph=True), repeats))
+    )
+    splat_outputs = (projected.means2d, projected.conics, rgb, projected.depths)
+    splat_grads = [torch.rand_like(t) for t in splat_outputs]
+    projection_inputs = (params[0], params[1], params[2], params[4])
+    stages.append(
+        (
+            "projection+SH bwd",
+            time_call(
+                lambda: torch.autograd.grad(splat_outputs, projection_inputs, splat_grads, retain_graph=True), repeats
+            ),
+        )
+    )
+
+    def forward_backward():
+        out = rasterize(*params, viewmat, K, width, height, backend="cpu")
+        (out["rgb"].sum() + out["depth"].mean() + out["alpha"].sum()).backward()
+
+    total = time_call(forward_backward, repeats)
+    stage_sum = [sum(timing[i] for _, timing in stages) for i in (0, 1)]
+    stages.append(("glue (rest)", (total[0] - stage_sum[0], total[1] - stage_sum[1])))
+    stages.append(("total fwd+bwd", total))
+    return stages
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--width", type=int, default=240, help="image width in pixels")
@@ -77,6 +136,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per cell (median reported)")
     parser.add_argument("--reference-repeats", type=int, default=2, help="timed calls for the slow reference")
     parser.add_argument("--skip-reference", action="store_true", help="time only the fast backends")
+    parser.add_argument("--stages", action="store_true", help="also print the CPU kernel's per-stage breakdown")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -109,6 +169,13 @@ def main() -> None:
                 ratios = f"{'':>13} {'':>17}"
             timings = f"{fwd:>9.1f} [{fwd_cpu:>7.1f}] {fwd_bwd:>10.1f} [{fwd_bwd_cpu:>7.1f}]"
             print(f"{count:>8} {backend:>8} {timings} {ratios}", flush=True)
+    if args.stages:
+        print("\n# CPU kernel stages (wall ms [process CPU ms], medians of separately timed calls)")
+        print(f"{'N':>8} {'stage':>20} {'ms':>18}")
+        for count in args.counts:
+            scene = random_scene(count, args.width, args.height)
+            for stage, (wall, cpu) in stage_breakdown(scene, args.width, args.height, args.repeats):
+                print(f"{count:>8} {stage:>20} {wall:>9.1f} [{cpu:>7.1f}]", flush=True)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,15 @@ views, and PSNR/SSIM against the true novel views of shift@3, shift@6 and lane_c
 
     python benchmarks/recon.py [--seed 101] [--scene DIR] [--models street pvg deformable s3]
                                [--preset default] [--iterations N] [--threads 1] [--out DIR]
+                               [--profile START STOP]
+
+``--profile START STOP`` also runs torch.profiler over training steps START..STOP-1 of every
+backbone and prints its CPU time per step and the operators that take most of it.
+
+``--stages RUNS`` trains nothing: it loads ``RUNS/run-<model>`` (the ``--out`` of an earlier
+run) and prints, per backbone, the CPU milliseconds of each stage of a full-resolution training
+step on that trained model, with the reference twin of every fast path next to it (kornia SSIM,
+targets converted every step, for-loop Adam).
 """
 
 from __future__ import annotations
@@ -26,6 +35,133 @@ def mean_metrics(renders, truths) -> tuple[float, float]:
         sum(psnr(r, t) for r, t in zip(renders, truths)) / len(renders),
         sum(ssim(r, t) for r, t in zip(renders, truths)) / len(renders),
     )
+
+
+def cpu_ms(function, repeats: int = 10) -> float:
+    """Mean CPU milliseconds of ``function()`` after two warm-up calls."""
+    for _ in range(2):
+        function()
+    start = time.process_time()
+    for _ in range(repeats):
+        function()
+    return 1e3 * (time.process_time() - start) / repeats
+
+
+def stage_times(model, scene, config) -> dict[str, float]:
+    """CPU ms of the stages of one full-resolution training step of ``model`` (frame 20's view)."""
+    import numpy as np
+    import torch
+
+    from recondreamer.recon.base import rigid_inverse
+    from recondreamer.recon.data import TargetCache, TrainingSet
+    from recondreamer.recon.density import build_optimizer
+    from recondreamer.recon.losses import image_tensor, ssim_loss
+    from recondreamer.recon.sky import pixel_ray_directions
+    from recondreamer.recon.ssim import mean_ssim
+    from recondreamer.scene.cameras import rasterizer_intrinsics
+    from recondreamer.splat import rasterize
+
+    view = TrainingSet.from_scene(scene, [scene.num_frames // 2])[0]
+    targets = TargetCache(config.loss.ssim_window).get(view, scene.K)
+    time_now = model.normalized_time(view.timestamp)
+    cam_to_world = torch.tensor(np.asarray(view.cam_to_world), dtype=torch.float32)
+    K = rasterizer_intrinsics(torch.tensor(np.asarray(scene.K), dtype=torch.float32))
+    viewmat = rigid_inverse(cam_to_world)
+    model.train()
+
+    def deformation():
+        g = model.gaussians_at(time_now)
+        sum(value.sum() for value in g.values()).backward()
+
+    with torch.no_grad():
+        fixed = model.gaussians_at(time_now)
+        colors = model.gaussians.sh_coefficients()
+    leaves = {k: v.detach().clone().requires_grad_(True) for k, v in fixed.items()}
+
+    def rasterizer():
+        out = rasterize(
+            leaves["means"], leaves["quats"], leaves["scales"], leaves["opacities"],
+            colors, viewmat, K, scene.width, scene.height, backend=config.backend,
+        )  # fmt: skip
+        (out["rgb"].sum() + out["depth"].sum()).backward()
+
+    image = targets.image.image
+    pred = (image + 0.05 * torch.randn_like(image)).clamp(0, 1).requires_grad_(True)
+
+    def kornia_ssim():
+        ssim_loss(pred, image, config.loss.ssim_window).backward()
+
+    def fast_ssim():
+        (1.0 - mean_ssim(pred, targets.image)).backward()
+
+    def uncached_targets():
+        image_tensor(view.image)
+        torch.from_numpy(np.array(view.depth, dtype=np.float32))
+        torch.from_numpy(np.array(view.sky_mask, dtype=bool))
+        pixel_ray_directions(cam_to_world, K, scene.width, scene.height)
+
+    cache = TargetCache(config.loss.ssim_window)
+    cache.get(view, scene.K)
+
+    def cached_targets():
+        cache.get(view, scene.K)
+
+    def sky():
+        model.sky(targets.ray_directions).sum().backward()
+
+    for param in model.parameters():
+        param.grad = torch.randn_like(param) * 1e-3
+    fused = build_optimizer(model, config.optim)
+    loop = torch.optim.Adam(
+        [
+            {"params": group["params"], "lr": group["lr"]}
+            for group in fused.param_groups
+        ],
+        eps=1e-15,
+        foreach=False,
+    )
+    return {
+        "deformation fwd+bwd": cpu_ms(deformation),
+        "rasterize fwd+bwd": cpu_ms(rasterizer),
+        "SSIM fwd+bwd kornia": cpu_ms(kornia_ssim),
+        "SSIM fwd+bwd fast": cpu_ms(fast_ssim),
+        "targets uncached": cpu_ms(uncached_targets),
+        "targets cached": cpu_ms(cached_targets),
+        "sky fwd+bwd": cpu_ms(sky),
+        "Adam for-loop": cpu_ms(loop.step),
+        "Adam fused": cpu_ms(fused.step),
+    }
+
+
+class StepProfiler:
+    """Trainer callback: torch.profiler over steps [start, stop), CPU time per step."""
+
+    def __init__(self, start: int, stop: int) -> None:
+        from torch.profiler import ProfilerActivity, profile
+
+        self.start, self.stop = start, stop
+        self.profiler = profile(activities=[ProfilerActivity.CPU])
+        self.cpu = 0.0
+
+    def __call__(self, trainer) -> None:
+        if trainer.step == self.start:
+            self.profiler.start()
+            self.cpu = time.process_time()
+        elif trainer.step == self.stop:
+            self.cpu = time.process_time() - self.cpu
+            self.profiler.stop()
+
+    def report(self, model_type: str) -> None:
+        steps = self.stop - self.start
+        print(
+            f"\n{model_type}: steps {self.start}-{self.stop - 1}, "
+            f"{1e3 * self.cpu / steps:.1f} ms CPU per step under the profiler"
+        )
+        print(
+            self.profiler.key_averages().table(
+                sort_by="self_cpu_time_total", row_limit=15, max_name_column_width=40
+            )
+        )
 
 
 def main() -> int:
@@ -56,6 +192,18 @@ def main() -> int:
         "--out",
         help="directory for the scene and runs (default: a temporary directory)",
     )
+    parser.add_argument(
+        "--profile",
+        nargs=2,
+        type=int,
+        metavar=("START", "STOP"),
+        help="profile training steps START..STOP-1 of every backbone (operator table)",
+    )
+    parser.add_argument(
+        "--stages",
+        metavar="RUNS",
+        help="print per-stage CPU times of the trained runs RUNS/run-<model> (no training)",
+    )
     args = parser.parse_args()
 
     import torch
@@ -82,6 +230,27 @@ def main() -> int:
             write_scene(scene_dir, generate_segment(args.seed, preset="default"))
         scene = load_scene(scene_dir)
 
+    if args.stages:
+        from recondreamer.recon import load_model
+
+        times = {
+            model_type: stage_times(
+                load_model(Path(args.stages) / f"run-{model_type}"),
+                scene,
+                make_config(model_type, args.preset),
+            )
+            for model_type in args.models
+        }
+        print(
+            f"\nCPU ms per call, {args.threads} thread(s), trained models of {args.stages}"
+        )
+        print("| stage | " + " | ".join(args.models) + " |")
+        print("|---|" + "---|" * len(args.models))
+        for stage in next(iter(times.values())):
+            cells = [f"{times[m][stage]:.2f}" for m in args.models]
+            print(f"| {stage} | " + " | ".join(cells) + " |")
+        return 0
+
     truth = {"original": [scene.image(t) for t in range(scene.num_frames)]}
     for name in EVAL_TRAJECTORIES:
         if name in scene.novel_trajectories:
@@ -91,9 +260,14 @@ def main() -> int:
         overrides = {"iterations": args.iterations} if args.iterations else {}
         config = make_config(model_type, args.preset, **overrides)
         run = out / f"run-{model_type}"
+        profiler = StepProfiler(*args.profile) if args.profile else None
         wall, cpu = time.perf_counter(), time.process_time()
-        model = train_scene(scene, config, run, resume=False)
+        model = train_scene(
+            scene, config, run, resume=False, callbacks=[profiler] if profiler else ()
+        )
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        if profiler is not None:
+            profiler.report(model_type)
         row = {
             "model": model_type,
             "iters": config.iterations,

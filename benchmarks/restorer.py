@@ -1,9 +1,12 @@
 """DriveRestorer backbones side by side on held-out restoration pairs.
 
-For every restorer given (sd, svd, dd2, dd2_mask) and every degraded clip of the given pairs
-files (each training stage of each held-out run), restore the clip and print:
+For every restorer given (sd, svd, dd2, dd2_mask), every sampling setting (DDIM steps x strength)
+and every degraded clip of the given pairs files (each training stage of each held-out run and
+trajectory), restore the clip and print:
 
-- PSNR of the degraded and of the restored clip against ground truth, and the mean gain (dB);
+- PSNR of the degraded and of the restored clip against ground truth, and the mean gain (dB), over
+  all clips and split by pairs kind: ``orig`` (training-view renders of snapshots, paper Fig. 3)
+  and ``novel`` (renders along a true novel trajectory of a synthetic scene, see ``pairs.py``);
 - flicker: the temporal-difference error ``mean |(x[t+1] - x[t]) - (g[t+1] - g[t])|`` (0-255 units)
   of a clip x against its ground truth g: change between consecutive frames that the true video
   does not have. Lower is steadier; a per-frame model that hallucinates details independently
@@ -17,12 +20,13 @@ Pairs whose scene was in a restorer's training set are skipped for that restorer
 records its training scenes). Example::
 
     python benchmarks/restorer.py --restorer sd=R/sd.pt svd=R/svd.pt dd2=R/dd2.pt dd2_mask=R/dd2_mask.pt \\
-        --pairs results/pairs_heldout
+        --pairs results/pairs_heldout --steps 1 4 10 --strength 1.0 0.6 0.3 --residual-decoding on off
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import multiprocessing
 import time
 
@@ -45,8 +49,8 @@ def mean(values: list[float]) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-def evaluate_restorer(item: str, pair_files: list, steps: int | None, strength: float | None, stages_per_run: int, threads: int) -> tuple:
-    """One table row: ARCH=CHECKPOINT restored on every held-out clip of the pairs files."""
+def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_run: int, threads: int) -> list[dict]:
+    """Rows for ARCH=CHECKPOINT: every (steps, strength) setting over every held-out clip."""
     import torch
 
     from recondreamer.restorer.checkpoint import load_checkpoint
@@ -60,43 +64,63 @@ def evaluate_restorer(item: str, pair_files: list, steps: int | None, strength: 
     trained_on = set(payload.get("training_scenes", []))
     train_ms = payload.get("metrics", {}).get("cpu_ms_per_step", float("nan"))
     train_minutes = train_ms * payload.get("metrics", {}).get("steps", 0) / 60000.0
-    gains, degraded_psnr, restored_psnr, flicker_degraded, flicker_restored = [], [], [], [], []
-    seconds_per_40 = cpu_seconds_per_40 = float("nan")
+    clips = []  # (kind, degraded, gt, structure)
     for file in pair_files:
         content = load_pairs_file(file)
         if str(content["scene_id"]) in trained_on:
             continue
-        gt = content["gt"]
-        structure = content["structure"] if restorer.unet_config.uses_structure else None
+        kind = "orig" if str(content.get("trajectory", "original")) == "original" else "novel"
         stages = np.arange(len(content["degraded"]))
         if stages_per_run:
             stages = np.unique(np.linspace(0, len(stages) - 1, stages_per_run).round().astype(int))
-        for degraded in content["degraded"][stages]:
+        structure = content["structure"] if restorer.unet_config.uses_structure else None
+        clips += [(kind, degraded, content["gt"], structure) for degraded in content["degraded"][stages]]
+    rows = []
+    for steps, strength, residual in settings:
+        records = []
+        seconds_per_40 = cpu_seconds_per_40 = float("nan")
+        for kind, degraded, gt, structure in clips:
             start, start_cpu = time.perf_counter(), time.process_time()
-            restored = restore_clip(restorer, degraded, structure, num_steps=steps, strength=strength)
+            restored = restore_clip(restorer, degraded, structure, num_steps=steps, strength=strength, residual_decoding=residual)
             seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
-            if not gains:
+            if not records:
                 seconds_per_40 = seconds * 40 / len(degraded)
                 cpu_seconds_per_40 = cpu_seconds * 40 / len(degraded)
-            d = np.mean([psnr(a, b) for a, b in zip(degraded, gt)])
-            r = np.mean([psnr(a, b) for a, b in zip(restored, gt)])
-            degraded_psnr.append(d)
-            restored_psnr.append(r)
-            gains.append(r - d)
-            flicker_degraded.append(flicker(degraded, gt))
-            flicker_restored.append(flicker(restored, gt))
-    return (
-        arch or restorer.arch, len(gains), mean(degraded_psnr), mean(restored_psnr), mean(gains),
-        mean(flicker_degraded), mean(flicker_restored), seconds_per_40, cpu_seconds_per_40, train_ms, train_minutes,
-    )
+            d = mean([psnr(a, b) for a, b in zip(degraded, gt)])
+            r = mean([psnr(a, b) for a, b in zip(restored, gt)])
+            records.append({"kind": kind, "degraded": d, "restored": r, "flicker_degraded": flicker(degraded, gt), "flicker_restored": flicker(restored, gt)})
+        by_kind = {k: [rec for rec in records if rec["kind"] == k] for k in ("orig", "novel")}
+        rows.append({
+            "arch": arch or restorer.arch,
+            "steps": steps or restorer.restore_config.sample_steps,
+            "strength": strength or restorer.restore_config.strength,
+            "residual": restorer.restore_config.residual_decoding if residual is None else residual,
+            "clips": len(records),
+            "psnr_degraded": mean([rec["degraded"] for rec in records]),
+            "psnr_restored": mean([rec["restored"] for rec in records]),
+            "gain": mean([rec["restored"] - rec["degraded"] for rec in records]),
+            "gain_orig": mean([rec["restored"] - rec["degraded"] for rec in by_kind["orig"]]),
+            "gain_novel": mean([rec["restored"] - rec["degraded"] for rec in by_kind["novel"]]),
+            "flicker_degraded": mean([rec["flicker_degraded"] for rec in records]),
+            "flicker_restored": mean([rec["flicker_restored"] for rec in records]),
+            "seconds_per_40": seconds_per_40,
+            "cpu_seconds_per_40": cpu_seconds_per_40,
+            "train_ms": train_ms,
+            "train_minutes": train_minutes,
+        })
+    return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--restorer", nargs="+", required=True, help="ARCH=CHECKPOINT pairs")
     parser.add_argument("--pairs", nargs="+", required=True, help="held-out restoration-pairs directories or .npz files")
-    parser.add_argument("--steps", type=int, default=None, help="DDIM steps (default: each checkpoint's)")
-    parser.add_argument("--strength", type=float, default=None, help="sampling strength, 1 = from noise (default: each checkpoint's)")
+    parser.add_argument("--steps", type=int, nargs="+", default=[None], help="DDIM step counts to try (default: each checkpoint's)")
+    parser.add_argument("--strength", type=float, nargs="+", default=[None], help="sampling strengths to try, 1 = from noise (default: each checkpoint's)")
+    parser.add_argument(
+        "--residual-decoding", choices=["on", "off"], nargs="+", default=[None],
+        help="decode only the change and add it to the input (default: each checkpoint's)",
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch threads per restorer (default 1)")
     parser.add_argument("--jobs", type=int, default=1, help="restorers evaluated in parallel processes (default 1)")
     parser.add_argument(
@@ -108,21 +132,29 @@ def main() -> None:
     from recondreamer.restorer.data import find_pairs_files
 
     files = find_pairs_files(args.pairs)
-    jobs = [(item, files, args.steps, args.strength, args.stages_per_run, args.threads) for item in args.restorer]
+    residual = [None if value is None else value == "on" for value in args.residual_decoding]
+    settings = list(itertools.product(args.steps, args.strength, residual))
+    jobs = [(item, files, settings, args.stages_per_run, args.threads) for item in args.restorer]
     if args.jobs > 1:
         with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
-            rows = pool.starmap(evaluate_restorer, jobs)
+            rows = [row for result in pool.starmap(evaluate_restorer, jobs) for row in result]
     else:
-        rows = [evaluate_restorer(*job) for job in jobs]
+        rows = [row for job in jobs for row in evaluate_restorer(*job)]
     header = (
-        f"{'backbone':10s} {'clips':>5s} {'PSNR deg':>9s} {'PSNR rest':>9s} {'gain dB':>8s} {'flick deg':>9s} {'flick rest':>10s} "
-        f"{'s / 40 fr':>9s} {'cpu s / 40':>10s} {'train CPU ms/step':>17s} {'train CPU min':>13s}"
+        f"{'backbone':10s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
+        f"{'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick rest':>10s} {'s / 40 fr':>9s} {'cpu s / 40':>10s} "
+        f"{'train CPU ms/step':>17s} {'train CPU min':>13s}"
     )
-    print(f"DDIM steps {args.steps or 'default'}, strength {args.strength or 'default'}, threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
+    print(f"threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
     print(header)
     print("-" * len(header))
-    for arch, clips, d, r, g, fd, fr, s, cpu_s, ms, minutes in rows:
-        print(f"{arch:10s} {clips:5d} {d:9.2f} {r:9.2f} {g:8.2f} {fd:9.2f} {fr:10.2f} {s:9.1f} {cpu_s:10.1f} {ms:17.0f} {minutes:13.1f}")
+    for row in sorted(rows, key=lambda r: (r["residual"], r["steps"], -r["strength"])):
+        print(
+            f"{row['arch']:10s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
+            f"{row['psnr_restored']:9.2f} {row['gain']:7.2f} {row['gain_orig']:6.2f} {row['gain_novel']:6.2f} "
+            f"{row['flicker_degraded']:9.2f} {row['flicker_restored']:10.2f} {row['seconds_per_40']:9.1f} "
+            f"{row['cpu_seconds_per_40']:10.1f} {row['train_ms']:17.0f} {row['train_minutes']:13.1f}"
+        )
 
 
 if __name__ == "__main__":

@@ -15,7 +15,12 @@ import torch
 
 from recondreamer.cli import main as cli_main
 from recondreamer.errors import RecondreamerError
-from recondreamer.methods.dd4d import dd4d_training_set, generate_videos, train_dd4d
+from recondreamer.methods.dd4d import (
+    dd4d_training_set,
+    generate_videos,
+    load_generated_videos,
+    train_dd4d,
+)
 from recondreamer.methods.loop import (
     PDUS_JSON,
     ProgressiveDataUpdate,
@@ -222,3 +227,35 @@ def test_cli_commands_run_from_checkpoint_files(scene, tmp_path):
     assert cli_main(["train-recondreamer", *common, "--restorer", str(tmp_path / "restorer.pt"), "--stride", "1.5",
                      "--restore-strength", "0", "--out", str(tmp_path / "bad")]) == 1
     assert cli_main(["train-dd4d", *common, "--world-model", str(tmp_path / "restorer.pt"), "--out", str(tmp_path / "x")]) == 1
+
+
+def test_dd4d_reads_videos_generated_once_by_the_dd4d_generate_command(scene, tmp_path):
+    """The workflow's split (one 'dd4d-generate' per trajectory, then 'train-dd4d --generated') trains on
+    exactly the frames train-dd4d would have generated itself (same seeds: run seed + trajectory index)."""
+    world = tiny_generative("world_model", scene.height, scene.width)
+    save_checkpoint(tmp_path / "world_model.pt", "world_model", world.arch, model_config_dict(world), world.unet.state_dict(),
+                    autoencoder=autoencoder_payload(world.autoencoder))
+    generated = tmp_path / "generated"
+    for index, name in enumerate(("shift@3", "lane_change")):
+        assert cli_main(["dd4d-generate", "--world-model", str(tmp_path / "world_model.pt"), "--scene", str(scene.path),
+                         "--trajectory", name, "--seed", str(index), "--out", str(generated / name)]) == 0
+    read = load_generated_videos(scene, generated, ("shift@3", "lane_change"))
+    made = generate_videos(scene, world, None, ("shift@3", "lane_change"))
+    for a, b in zip(read, made):
+        assert a.source == b.source and a.info["offset_m"] == b.info["offset_m"]
+        assert np.array_equal(a.poses, b.poses) and np.array_equal(a.frames, b.frames)
+
+    common = ["--scene", str(scene.path), "--model", "street", "--preset", "quick", "--iterations", "4",
+              "--backend", "cpu", "--threads", "1", "--trajectories", "shift@3,lane_change"]
+    assert cli_main(["train-dd4d", *common, "--generated", str(generated), "--out", str(tmp_path / "dd")]) == 0
+    assert (tmp_path / "dd" / "model.pt").is_file() and not (tmp_path / "dd" / "generated").exists()
+    # A missing trajectory folder, or both/neither of the two sources, is a clear error.
+    assert cli_main(["train-dd4d", *common[:-1], "shift@6", "--generated", str(generated), "--out", str(tmp_path / "x")]) == 1
+    assert cli_main(["train-dd4d", *common, "--out", str(tmp_path / "y")]) == 1
+    other = tmp_path / "other" / "shift@3"
+    other.mkdir(parents=True)
+    for frame in sorted((generated / "shift@3").glob("*.png")):
+        (other / frame.name).write_bytes(frame.read_bytes())
+    (other / "info.json").write_text(json.dumps({"scene_id": "another-scene", "trajectory": "shift@3"}))
+    with pytest.raises(RecondreamerError, match="another-scene"):
+        load_generated_videos(scene, other.parent, ("shift@3",))

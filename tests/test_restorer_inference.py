@@ -138,3 +138,22 @@ def test_checkpoints_round_trip_and_wrong_kinds_are_rejected(tmp_path):
     (tmp_path / "garbage.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="not a readable"):
         load_checkpoint(tmp_path / "garbage.pt", "restorer")
+
+
+def test_residual_decoding_adds_only_the_decoded_change_to_the_input(monkeypatch):
+    from recondreamer.restorer import inference
+    from recondreamer.restorer.autoencoder import decode_latents, encode_frames
+
+    restorer = tiny_model("dd2_mask", kind="restorer")
+    rng = np.random.default_rng(2)
+    frames = rng.integers(0, 256, size=(5, H, W, 3), dtype=np.uint8)
+    structure = rng.random((5, len(STRUCTURE), H, W)).astype(np.float32)
+    plain = restore_clip(restorer, frames, structure, window=4, overlap=1, seed=3)
+    residual = restore_clip(restorer, frames, structure, window=4, overlap=1, seed=3, residual_decoding=True)
+    reconstruction = decode_latents(restorer.autoencoder, encode_frames(restorer.autoencoder, frames)).astype(np.int32)
+    expected = np.clip(frames.astype(np.int32) + plain.astype(np.int32) - reconstruction, 0, 255)
+    assert np.array_equal(residual, expected)
+    assert not np.array_equal(residual, plain)
+    # A restorer that returns the input's own latents changes nothing at all.
+    monkeypatch.setattr(inference, "_sample_clip", lambda model, reference, *args: reference)
+    assert np.array_equal(restore_clip(restorer, frames, structure, residual_decoding=True), frames)

@@ -57,6 +57,7 @@ def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments:
         "make_pairs_segment": segments if pair_segments else 0,
         "make_pairs_corpus": pair_corpus,
         "train_restorer": 4,
+        "generate_dd4d": 3 * segments,  # DriveDreamer4D's 3 trajectories, generated once per segment
         "train_dd4d": 3 * segments,
         "train_recondreamer": 11 * segments,
         "render_trajectories": runs_per_segment * segments,
@@ -94,6 +95,11 @@ def test_paper_waymo_config_dry_run_job_counts(tmp_path):
     # The frame ranges of the paper's supplement reach the converter.
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "config/paper-waymo.yaml", "--until", "convert_waymo")
     assert "segment-10359308928573410754_720_000_740_000_with_camera_labels.tfrecord --out results/paper-waymo/scenes/10359308928573410754 --start 120 --end 159" in shell.stdout
+    # Reconstructions train on the GPU with gsplat, DriveDreamer4D reads the videos generated once per segment.
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "config/paper-waymo.yaml", "--until", "train_dd4d")
+    train = [line for line in shell.stdout.splitlines() if re.search(r"recondreamer train-(recon|dd4d|recondreamer) ", line)]
+    assert train and all("--backend gsplat --device cuda" in line for line in train)
+    assert all("--generated results/paper-waymo/dd4d_generated/" in line for line in train if "train-dd4d" in line)
 
 
 def _bad_config(root: Path, edit) -> str:

@@ -51,10 +51,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="DriveDreamer4D baseline: generate novel-trajectory videos once, train on original + generated",
         description="Generate shift@3, shift@6 and lane_change videos with the pretrained dd2 world model, then train "
         "the reconstruction on original + generated frames (50/50, depth-free on generated), no updates. Writes "
-        "RUN/model.pt like train-recon and RUN/generated/<trajectory>/; re-running after a kill resumes.",
+        "RUN/model.pt like train-recon and RUN/generated/<trajectory>/; re-running after a kill resumes. With "
+        "--generated DIR the videos are read from DIR (written once per segment by 'recondreamer dd4d-generate').",
     )
     _add_recon_options(dd4d)
-    dd4d.add_argument("--world-model", required=True, metavar="CKPT", help="pretrained dd2 world-model checkpoint")
+    dd4d.add_argument("--world-model", metavar="CKPT", help="pretrained dd2 world-model checkpoint (needed unless --generated)")
+    dd4d.add_argument("--generated", metavar="DIR",
+                      help="read the videos from DIR/<trajectory>/ (frames written by 'recondreamer dd4d-generate' for this "
+                      "scene) instead of generating them: the workflow generates once per segment for every backbone")
     dd4d.add_argument("--trajectories", default="shift@3,shift@6,lane_change",
                       help="comma-separated novel trajectories to generate (default: shift@3,shift@6,lane_change)")
     dd4d.add_argument("--generate-steps", type=int, default=None, help="DDIM steps of generation (default: the checkpoint's)")
@@ -107,10 +111,14 @@ def run_train_dd4d(args: argparse.Namespace) -> int:
     trajectories = tuple(name.strip() for name in args.trajectories.split(",") if name.strip())
     if not trajectories:
         raise RecondreamerError("--trajectories: give at least one trajectory name")
+    if (args.world_model is None) == (args.generated is None):
+        raise RecondreamerError("train-dd4d: give exactly one of --world-model (generate here) and --generated (read videos)")
     scene = load_scene(args.scene)
-    world_model = load_world_model(args.world_model)
-    if world_model.arch != "dd2":
-        raise RecondreamerError(f"{args.world_model}: DriveDreamer4D needs the dd2 world model, got {world_model.arch!r}")
-    model = train_dd4d(scene, config, args.out, world_model, trajectories, args.generate_steps)
+    world_model = None
+    if args.world_model is not None:
+        world_model = load_world_model(args.world_model)
+        if world_model.arch != "dd2":
+            raise RecondreamerError(f"{args.world_model}: DriveDreamer4D needs the dd2 world model, got {world_model.arch!r}")
+    model = train_dd4d(scene, config, args.out, world_model, trajectories, args.generate_steps, args.generated)
     log.info("done: DriveDreamer4D %s with %d Gaussians in %s", args.model, len(model.gaussians), args.out)
     return 0

@@ -119,10 +119,14 @@ class GaussianSceneModel(nn.Module, abc.ABC):
         height: int,
         backend: str = "auto",
         static: bool = False,
+        ray_directions: torch.Tensor | None = None,
     ) -> dict[str, torch.Tensor]:
         """Render one view: ``rgb`` (H,W,3) in [0,1] over the sky, ``depth`` (H,W) expected depth
         (accumulated depth / alpha; 0 where nothing is hit), ``alpha`` (H,W); also ``means2d`` (N,2), ``radii`` (N,) and
-        ``visible`` (N,) of the rasteriser for density control."""
+        ``visible`` (N,) of the rasteriser for density control.
+
+        ``ray_directions`` (H,W,3): the pixels' world directions for the sky lookup when the
+        caller has them already (the trainer caches them per view); computed here otherwise."""
         from recondreamer.splat import rasterize
 
         from recondreamer.scene.cameras import rasterizer_intrinsics
@@ -145,7 +149,9 @@ class GaussianSceneModel(nn.Module, abc.ABC):
             backend=backend,
         )
         alpha = out["alpha"]
-        sky = self.sky(pixel_ray_directions(cam_to_world, K, width, height))
+        if ray_directions is None:
+            ray_directions = pixel_ray_directions(cam_to_world, K, width, height)
+        sky = self.sky(ray_directions)
         rgb = out["rgb"] + (1.0 - alpha)[..., None] * sky
         return {
             "rgb": rgb.clamp(0.0, 1.0),

@@ -10,7 +10,7 @@ original and novel, newest novel video with probability w).
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, OrderedDict
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
@@ -19,14 +19,26 @@ import torch
 import torch.nn.functional as F
 
 from recondreamer.errors import RecondreamerError
-from recondreamer.scene.cameras import pixel_indices, project_points, world_to_camera
+from recondreamer.recon.losses import image_tensor
+from recondreamer.recon.sky import pixel_ray_directions
+from recondreamer.recon.ssim import SSIMTarget
+from recondreamer.scene.cameras import (
+    pixel_indices,
+    project_points,
+    rasterizer_intrinsics,
+    world_to_camera,
+)
 
 ORIGINAL = "original"
 
 
 @dataclass
 class TrainingView:
-    """One supervised view."""
+    """One supervised view.
+
+    Its image, depth and sky mask are read once, the first time the trainer draws it (see
+    ``TargetCache``): to change them, add a new view (PDUS adds a new video at each update).
+    """
 
     cam_to_world: np.ndarray  # (4,4)
     timestamp: float  # seconds, on the scene's clock
@@ -93,6 +105,99 @@ def downsample_targets(
         )
     scale = np.diag([width / image.shape[1], height / image.shape[0], 1.0])
     return small, small_depth, small_sky, scale @ np.asarray(K, dtype=np.float64)
+
+
+@dataclass
+class ViewTargets:
+    """One view's supervision at one resolution, as tensors ready for a training step."""
+
+    image: SSIMTarget  # RGB (h,w,3) in [0,1] with its SSIM statistics
+    depth: (
+        torch.Tensor | None
+    )  # (h,w) LiDAR depth, 0 = no target; None = depth-free view
+    sky_mask: torch.Tensor | None  # (h,w) bool
+    K: np.ndarray  # (3,3) intrinsics at this resolution (scene convention)
+    ray_directions: (
+        torch.Tensor
+    )  # (h,w,3) unit world directions of the pixels (sky lookup)
+
+    def nbytes(self) -> int:
+        tensors = (
+            self.image.image,
+            self.image.channels,
+            self.image.mean,
+            self.image.variance,
+            self.depth,
+            self.sky_mask,
+            self.ray_directions,
+        )
+        return sum(t.numel() * t.element_size() for t in tensors if t is not None)
+
+
+class TargetCache:
+    """Targets of training views as tensors, built the first time a view is drawn at a resolution.
+
+    Converting, downsampling and (for SSIM) blurring a target costs as much as a good part of
+    a CPU training step, and every view is drawn many times. Entries are keyed by view identity
+    (the entry holds the view, so the identity cannot be reused while cached) and evicted least
+    recently used beyond ``max_bytes``.
+    """
+
+    def __init__(
+        self,
+        ssim_window: int,
+        device: torch.device | str = "cpu",
+        max_bytes: int = 2 * 1024**3,
+    ) -> None:
+        self.ssim_window = ssim_window
+        self.device = torch.device(device)
+        self.max_bytes = max_bytes
+        self.entries: OrderedDict[tuple[int, int], tuple[TrainingView, ViewTargets]] = (
+            OrderedDict()
+        )
+        self.bytes = 0
+
+    def get(self, view: TrainingView, K: np.ndarray, factor: int = 1) -> ViewTargets:
+        """``view``'s targets at 1/``factor`` resolution; ``K`` are its full-resolution intrinsics."""
+        key = (id(view), factor)
+        entry = self.entries.get(key)
+        if entry is not None and entry[0] is view:
+            self.entries.move_to_end(key)
+            return entry[1]
+        targets = self.build(view, K, factor)
+        self.entries[key] = (view, targets)
+        self.bytes += targets.nbytes()
+        while self.bytes > self.max_bytes and len(self.entries) > 1:
+            _, (_, evicted) = self.entries.popitem(last=False)
+            self.bytes -= evicted.nbytes()
+        return targets
+
+    def build(self, view: TrainingView, K: np.ndarray, factor: int) -> ViewTargets:
+        image = image_tensor(view.image).to(self.device)  # (H,W,3)
+        depth, sky_mask = view.depth, view.sky_mask
+        if factor > 1:
+            image, depth, sky_mask, K = downsample_targets(
+                image, depth, sky_mask, K, factor
+            )
+        height, width = image.shape[:2]
+        # Copies (np.array): scene arrays can be read-only, which torch.from_numpy warns about.
+        cam_to_world = torch.from_numpy(
+            np.array(view.cam_to_world, dtype=np.float32)
+        ).to(self.device)
+        K_raster = rasterizer_intrinsics(
+            torch.from_numpy(np.array(K, dtype=np.float32)).to(self.device)
+        )
+        return ViewTargets(
+            image=SSIMTarget.from_image(image, self.ssim_window),
+            depth=None
+            if depth is None
+            else torch.from_numpy(np.array(depth, dtype=np.float32)).to(self.device),
+            sky_mask=None
+            if sky_mask is None
+            else torch.from_numpy(np.array(sky_mask, dtype=bool)).to(self.device),
+            K=np.asarray(K, dtype=np.float64),
+            ray_directions=pixel_ray_directions(cam_to_world, K_raster, width, height),
+        )
 
 
 class TrainingSet:

@@ -49,27 +49,30 @@ class HexPlaneField(nn.Module):
                 planes.append(nn.Parameter(plane))
         self.planes = nn.ParameterList(planes)
         self.num_resolutions = len(resolutions)
+        self.register_buffer(
+            "pair_index", torch.tensor(PLANE_AXES), persistent=False
+        )  # (6,2)
 
     def forward(self, coords: torch.Tensor) -> torch.Tensor:
+        # One gather of the six coordinate pairs (one backward scatter instead of six), and
+        # channels-first products: the samples come out of grid_sample as contiguous (F,N).
+        pairs = coords[:, self.pair_index].permute(1, 0, 2).contiguous()  # (6,N,2)
+        count = coords.shape[0]
         features = []
         for level in range(self.num_resolutions):
             product = None
-            for k, (a, b) in enumerate(PLANE_AXES):
-                plane = self.planes[level * len(PLANE_AXES) + k]
-                grid = coords[:, (a, b)].reshape(
-                    1, 1, -1, 2
-                )  # x indexes axis a (width), y axis b
+            for k in range(len(PLANE_AXES)):
+                plane = self.planes[level * len(PLANE_AXES) + k]  # (1,F,size_b,size_a)
                 sample = F.grid_sample(
                     plane,
-                    grid,
+                    pairs[k].view(1, 1, count, 2),  # x indexes axis a (width), y axis b
                     mode="bilinear",
                     padding_mode="border",
                     align_corners=True,
-                )
-                sample = sample[0, :, 0, :].T  # (N,F)
+                ).view(-1, count)  # (F,N)
                 product = sample if product is None else product * sample
             features.append(product)
-        return torch.cat(features, dim=1)
+        return torch.cat(features).T  # (N, F * levels)
 
     def regularization(self) -> torch.Tensor:
         """Total variation of every plane + second differences along time of the time planes."""

@@ -35,13 +35,13 @@ from recondreamer.recon.checkpoint import (
     snapshot_path,
 )
 from recondreamer.recon.config import ReconConfig, to_dict
-from recondreamer.recon.data import TrainingSet, downsample_targets
+from recondreamer.recon.data import TargetCache, TrainingSet
 from recondreamer.recon.density import (
     DensityController,
     build_optimizer,
     update_learning_rates,
 )
-from recondreamer.recon.losses import image_tensor, psnr, view_loss
+from recondreamer.recon.losses import psnr, view_loss
 from recondreamer.recon.models import MODEL_CLASSES
 
 logger = logging.getLogger("recondreamer.recon")
@@ -86,6 +86,7 @@ class Trainer:
         self.step = 0
         self.warmup_steps = int(config.net.warmup_fraction * config.iterations)
         self.last_psnr = float("nan")
+        self.targets = TargetCache(config.loss.ssim_window, config.device)
 
     # --- one step -------------------------------------------------------------------------
     def train_step(self) -> dict[str, float]:
@@ -93,32 +94,28 @@ class Trainer:
         data = self.training_set
         view = data.sample(self.rng)
         static = self.step < self.warmup_steps
-        image, depth, sky_mask, K = (
-            image_tensor(view.image).to(config.device),
-            view.depth,
-            view.sky_mask,
-            data.K,
-        )
-        if (
+        coarse = (
             self.step < config.coarse_fraction * config.iterations
             and config.coarse_factor > 1
-        ):
-            image, depth, sky_mask, K = downsample_targets(
-                image, depth, sky_mask, K, config.coarse_factor
-            )
+        )
+        targets = self.targets.get(view, data.K, config.coarse_factor if coarse else 1)
+        image = targets.image.image  # (h,w,3)
         height, width = image.shape[:2]
         self.model.train()
         render = self.model.render(
             view.cam_to_world,
             view.timestamp,
-            K,
+            targets.K,
             width,
             height,
             backend=config.backend,
             static=static,
+            ray_directions=targets.ray_directions,
         )
         render["means2d"].retain_grad()
-        loss, parts = view_loss(render, image, depth, sky_mask, config.loss)
+        loss, parts = view_loss(
+            render, targets.image, targets.depth, targets.sky_mask, config.loss
+        )
         regularization = None if static else self.model.regularization()
         if regularization is not None:
             loss = loss + regularization

@@ -36,6 +36,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="directory receiving one <scene>__<run>.npz per run")
     p.add_argument("--stages", type=int, default=4, help="training stages (snapshots) sampled per run (default 4)")
     p.add_argument("--scene", default=None, help="scene directory of every run (default: the scene named in each run.json)")
+    p.add_argument(
+        "--trajectories", nargs="+", default=["original"],
+        help="trajectories to render (default: original); novel ones (shift@Y, lane_change) need the scene's true "
+        "novel views and are also rendered from the final model.pt",
+    )
     _add_threads_option(p)
     p.set_defaults(func=run_make_pairs)
 
@@ -45,6 +50,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files")
     p.add_argument("--out", required=True, help="restorer checkpoint to write")
     p.add_argument("--mask-probability", type=float, default=None, help="dd2_mask: probability that a frame is masked (default from MaskConfig)")
+    p.add_argument("--sample-steps", type=int, default=None, help="default DDIM steps stored for restoring (default from RestoreConfig)")
+    p.add_argument("--strength", type=float, default=None, help="default restore strength stored in the checkpoint (default from RestoreConfig)")
+    p.add_argument(
+        "--residual-decoding", choices=["on", "off"], default=None,
+        help="store whether restoring decodes only the change and adds it to the input (default from RestoreConfig)",
+    )
     _add_train_options(p)
     _add_threads_option(p)
     p.set_defaults(func=run_train_restorer)
@@ -128,7 +139,10 @@ def run_train_autoencoder(args: argparse.Namespace) -> int:
 
 def run_pretrain_world_model(args: argparse.Namespace) -> int:
     from recondreamer.restorer.config import DiffusionConfig, UNetConfig
-    from recondreamer.restorer.data import load_corpus_sequences, structure_channel_names
+    from recondreamer.restorer.data import (
+        load_corpus_sequences,
+        structure_channel_names,
+    )
     from recondreamer.restorer.models import load_autoencoder
     from recondreamer.restorer.training import pretrain_world_model
 
@@ -153,12 +167,13 @@ def run_make_pairs(args: argparse.Namespace) -> int:
 
     _set_threads(args)
     for run in args.run:
-        out = make_pairs_for_run(run, args.out, args.stages, args.scene)
-        LOG.info("wrote %s", out)
+        for out in make_pairs_for_run(run, args.out, args.stages, args.scene, tuple(args.trajectories)):
+            LOG.info("wrote %s", out)
     return 0
 
 
 def run_train_restorer(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
     from recondreamer.restorer.config import MaskConfig, RestoreConfig
     from recondreamer.restorer.data import find_pairs_files, load_pair_sequences
     from recondreamer.restorer.inference import load_world_model
@@ -171,7 +186,14 @@ def run_train_restorer(args: argparse.Namespace) -> int:
         masks = MaskConfig() if args.mask_probability is None else dataclasses.replace(MaskConfig(), probability=args.mask_probability)
     files = find_pairs_files(args.pairs)
     sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=masks is not None)
-    stats = train_restorer(world, args.arch, sequences, _train_config(args, world.train_config), masks, RestoreConfig(), args.out, args.world_model)
+    restore = RestoreConfig()
+    overrides = {"sample_steps": args.sample_steps, "strength": args.strength}
+    if args.residual_decoding is not None:
+        overrides["residual_decoding"] = args.residual_decoding == "on"
+    restore = dataclasses.replace(restore, **{k: v for k, v in overrides.items() if v is not None})
+    if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1:
+        raise RecondreamerError(f"--strength must be in (0, 1] and --sample-steps >= 1, got {restore.strength} and {restore.sample_steps}")
+    stats = train_restorer(world, args.arch, sequences, _train_config(args, world.train_config), masks, restore, args.out, args.world_model)
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 

@@ -77,9 +77,12 @@ class UNetConfig:
 
 @dataclass(frozen=True)
 class DiffusionConfig:
-    """Noise schedule (epsilon prediction) and DDIM sampling defaults."""
+    """Noise schedule, prediction target and DDIM sampling defaults (see ``diffusion.py``)."""
 
     schedule: str = "linear"  # "linear" (Stable Diffusion's scaled-linear betas) or "cosine"
+    # "v" (as Stable Video Diffusion), "epsilon" (as Stable Diffusion) or "x0": v keeps the
+    # noisiest steps' x0 estimate free of the ~15x eps-error amplification of the linear schedule.
+    prediction: str = "v"
     train_timesteps: int = 1000
     beta_start: float = 0.00085
     beta_end: float = 0.012
@@ -131,4 +134,8 @@ class RestoreConfig:
     sample_steps: int = 10
     strength: float = 1.0  # 1 = start from pure noise; < 1 starts from the noised degraded latent
     seed: int = 0
+    # Decode the change only: output = input + D(z_restored) - D(E(input)). Pixels the restorer
+    # leaves alone keep the input's detail instead of the autoencoder's reconstruction of it, so
+    # the autoencoder's own error no longer caps the output's fidelity.
+    residual_decoding: bool = False
 

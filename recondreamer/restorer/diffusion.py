@@ -1,4 +1,30 @@
-"""Noise schedule, training loss and deterministic DDIM sampling (epsilon prediction)."""
+"""Noise schedule, training loss and deterministic DDIM sampling.
+
+Notation: ``alpha_bar[t]`` is the cumulative signal level of step t, ``a = sqrt(alpha_bar)`` and
+``s = sqrt(1 - alpha_bar)`` (so ``a^2 + s^2 = 1``), and the forward process is
+
+    x_t = a * x0 + s * eps,        eps ~ N(0, I).
+
+The network can be trained to predict one of three equivalent targets (``prediction``):
+
+- ``epsilon``: eps (DDPM, Stable Diffusion);
+- ``v``: v = a * eps - s * x0 (Salimans & Ho 2022, Stable Video Diffusion);
+- ``x0``: the clean latent itself.
+
+Given x_t and the prediction, the sampler needs both x0 and eps:
+
+- from eps:  x0 = (x_t - s * eps) / a;
+- from v:    x0 = a * x_t - s * v  and  eps = s * x_t + a * v
+  (substitute x_t and v: a^2 x0 + a s eps - s a eps + s^2 x0 = x0, and likewise for eps);
+- from x0:   eps = (x_t - a * x0) / s.
+
+Why it matters here: on Stable Diffusion's scaled-linear schedule the noisiest step has
+alpha_bar ~ 0.005, so recovering x0 from an eps prediction divides its error by a ~ 0.07 (a
+~15x amplification). A small, briefly trained model then lands far from the data at the first
+DDIM step. With v (or x0) prediction the first step's x0 estimate is the network's own output,
+the conditional mean of the clean latent given the conditions (for a restorer: the degraded
+video), with no amplification.
+"""
 
 from __future__ import annotations
 
@@ -9,12 +35,17 @@ import torch
 
 from recondreamer.restorer.config import DiffusionConfig
 
+PREDICTIONS = ("epsilon", "v", "x0")
+
 
 class NoiseSchedule:
-    """Cumulative signal levels ``alpha_bar[t]`` of a linear (SD scaled-linear) or cosine schedule."""
+    """Cumulative signal levels ``alpha_bar[t]`` of a linear (SD scaled-linear) or cosine schedule,
+    and the conversions between the network's prediction and (x0, eps)."""
 
     def __init__(self, config: DiffusionConfig):
         self.config = config
+        if config.prediction not in PREDICTIONS:
+            raise ValueError(f"unknown prediction target {config.prediction!r} (expected one of {', '.join(PREDICTIONS)})")
         n = config.train_timesteps
         if config.schedule == "linear":
             betas = torch.linspace(config.beta_start**0.5, config.beta_end**0.5, n, dtype=torch.float64) ** 2
@@ -31,10 +62,39 @@ class NoiseSchedule:
     def num_timesteps(self) -> int:
         return self.config.train_timesteps
 
+    @property
+    def prediction(self) -> str:
+        return self.config.prediction
+
+    def _levels(self, timesteps: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(a, s) of each batch element, shaped to broadcast against ``like`` (B,...)."""
+        alpha_bar = self.alpha_bar.to(like.device)[timesteps].reshape(-1, *([1] * (like.dim() - 1)))
+        return alpha_bar.sqrt(), (1.0 - alpha_bar).sqrt()
+
     def add_noise(self, x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
         """q(x_t | x_0) for a batch: x0, noise (B,...), timesteps (B,)."""
-        a = self.alpha_bar.to(x0.device)[timesteps].reshape(-1, *([1] * (x0.dim() - 1)))
-        return a.sqrt() * x0 + (1.0 - a).sqrt() * noise
+        a, s = self._levels(timesteps, x0)
+        return a * x0 + s * noise
+
+    def training_target(self, x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
+        """What the network learns to output for x_t = add_noise(x0, noise, timesteps)."""
+        if self.prediction == "epsilon":
+            return noise
+        if self.prediction == "x0":
+            return x0
+        a, s = self._levels(timesteps, x0)
+        return a * noise - s * x0
+
+    def split_prediction(
+        self, x_t: torch.Tensor, output: torch.Tensor, timesteps: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The (x0, eps) estimates implied by the network's ``output`` at x_t (module docstring)."""
+        a, s = self._levels(timesteps, x_t)
+        if self.prediction == "epsilon":
+            return (x_t - s * output) / a, output
+        if self.prediction == "x0":
+            return output, (x_t - a * output) / s
+        return a * x_t - s * output, s * x_t + a * output
 
     def sampling_timesteps(self, num_steps: int, strength: float = 1.0) -> list[int]:
         """Evenly spaced decreasing steps; ``strength`` < 1 starts part-way (SDEdit-style)."""
@@ -53,12 +113,12 @@ def diffusion_loss(
     x0: torch.Tensor,  # (B,...)
     generator: torch.Generator | None = None,
 ) -> torch.Tensor:
-    """Mean squared error between the sampled noise and the model's prediction at random steps."""
+    """Mean squared error between the network's output and its target at random steps."""
     b = x0.shape[0]
     timesteps = torch.randint(0, schedule.num_timesteps, (b,), generator=generator)
     noise = torch.randn(x0.shape, generator=generator)
     noisy = schedule.add_noise(x0, noise, timesteps)
-    return torch.mean((model_fn(noisy, timesteps) - noise) ** 2)
+    return torch.mean((model_fn(noisy, timesteps) - schedule.training_target(x0, noise, timesteps)) ** 2)
 
 
 @torch.no_grad()
@@ -73,7 +133,8 @@ def ddim_sample(
     generator: torch.Generator | None = None,
     clip_x0: float | None = 6.0,
 ) -> torch.Tensor:
-    """DDIM (Song et al.): deterministic for eta = 0; ``model_fn(x_t, t (B,)) -> eps``."""
+    """DDIM (Song et al.): deterministic for eta = 0; ``model_fn(x_t, t (B,))`` returns the
+    schedule's prediction target. The last step returns the x0 estimate itself."""
     steps = schedule.sampling_timesteps(num_steps, strength)
     alpha_bar = schedule.alpha_bar
     b = noise.shape[0]
@@ -86,8 +147,8 @@ def ddim_sample(
     for index, step in enumerate(steps):
         a_t = alpha_bar[step]
         a_prev = alpha_bar[steps[index + 1]] if index + 1 < len(steps) else torch.tensor(1.0)
-        eps = model_fn(x, torch.full((b,), step, dtype=torch.long))
-        x0 = (x - (1.0 - a_t).sqrt() * eps) / a_t.sqrt()
+        timesteps = torch.full((b,), step, dtype=torch.long)
+        x0, eps = schedule.split_prediction(x, model_fn(x, timesteps), timesteps)
         if clip_x0 is not None:
             # Latents are normalised to unit variance; clipping the x0 estimate keeps the
             # first, noisiest steps from throwing the sample far off the data range.

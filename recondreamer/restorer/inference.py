@@ -142,11 +142,13 @@ def restore_clip(
     overlap: int | None = None,
     strength: float | None = None,
     seed: int | None = None,
+    residual_decoding: bool | None = None,
 ) -> np.ndarray:  # (T,H,W,3) uint8
     """Restore a rendered clip with DriveRestorer (defaults from the checkpoint's restore config).
 
     Each window is conditioned on its degraded frames (its first one also as the reference
-    frame, as in training) and, for dd2 archs, on the structure maps.
+    frame, as in training) and, for dd2 archs, on the structure maps. With residual decoding
+    the output is the input plus the decoded change ``D(z_restored) - D(E(input))``.
     """
     if restorer.kind != "restorer":
         raise RecondreamerError(f"restore_clip needs a restorer, got a {restorer.kind} ({restorer.arch})")
@@ -159,7 +161,11 @@ def restore_clip(
         num_steps or config.sample_steps, window or config.window, config.overlap if overlap is None else overlap,
         config.strength if strength is None else strength, config.seed if seed is None else seed,
     )
-    return decode_latents(restorer.autoencoder, latents)
+    restored = decode_latents(restorer.autoencoder, latents)
+    if not (config.residual_decoding if residual_decoding is None else residual_decoding):
+        return restored
+    change = restored.astype(np.int16) - decode_latents(restorer.autoencoder, degraded_latents).astype(np.int16)
+    return np.clip(frames.astype(np.int16) + change, 0, 255).astype(np.uint8)
 
 
 def generate_clip(

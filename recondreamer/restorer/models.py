@@ -77,7 +77,8 @@ def model_from_payload(payload: dict) -> GenerativeModel:
     unet_config = config_from_dict(UNetConfig, config["unet"])
     unet = LatentUNet(unet_config)
     unet.load_state_dict(payload["state"])
-    diffusion_config = config_from_dict(DiffusionConfig, config["diffusion"])
+    # Checkpoints written before the prediction target was configurable were trained on eps.
+    diffusion_config = config_from_dict(DiffusionConfig, {"prediction": "epsilon", **config["diffusion"]})
     return GenerativeModel(
         kind=payload["kind"],
         arch=payload["arch"],

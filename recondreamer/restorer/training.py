@@ -300,7 +300,7 @@ def sample_batch(
 
 
 def unet_loss(unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator) -> torch.Tensor:
-    """The diffusion loss (epsilon MSE at a random step per clip) of one batch."""
+    """The diffusion loss (MSE to the schedule's prediction target at a random step per clip) of one batch."""
 
     def model_fn(noisy: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
         return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])

@@ -127,7 +127,8 @@ class StructureEncoder(nn.Module):
 
 
 class LatentUNet(nn.Module):
-    """Epsilon-prediction UNet over clips of latents; see the module docstring for the conditions."""
+    """Diffusion UNet over clips of latents (it outputs the schedule's prediction target: eps, v or
+    x0); see the module docstring for the conditions."""
 
     def __init__(self, config: UNetConfig):
         super().__init__()
@@ -196,7 +197,7 @@ class LatentUNet(nn.Module):
         structure: torch.Tensor | None = None,  # (B,T,S,H,W) with H = h*factor (dd2 archs)
         degraded: torch.Tensor | None = None,  # (B,T,c,h,w) degraded-video latent (restorers)
         structure_features: torch.Tensor | None = None,  # (B*T,C0,h,w) from encode_structure, instead of structure
-    ) -> torch.Tensor:  # (B,T,c,h,w) predicted noise
+    ) -> torch.Tensor:  # (B,T,c,h,w) predicted target (eps, v or x0)
         b, t, c, h, w = noisy.shape
         self._check_conditions(noisy, reference, degraded)
         if structure_features is None and self.structure_encoder is not None:

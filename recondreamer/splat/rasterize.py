@@ -1,9 +1,11 @@
 """The public entry point: ``rasterize(...)`` with a choice of backend.
 
-Pipeline for the CPU backends: validate inputs -> differentiable torch projection (EWA) and
-SH colours -> rasterisation of the in-front splats by the reference compositor (``"torch"``) or
-the C++ tile kernel (``"cpu"``) -> background and depth normalisation in torch. The gsplat
-backend hands the whole job to gsplat's CUDA rasterizer with the same conventions.
+Pipeline for the CPU backends: validate inputs -> projection (EWA) and SH colours -> compositing
+of the in-front splats -> background and depth normalisation in torch. ``"torch"`` runs the
+readable torch projection and the reference compositor; ``"cpu"`` runs both stages as C++
+kernels (one fused projection + SH pass, then the tile compositor), except that it keeps the
+torch projection when viewmat or K need gradients, which the fused pass does not compute. The
+gsplat backend hands the whole job to gsplat's CUDA rasterizer with the same conventions.
 """
 
 from __future__ import annotations
@@ -55,8 +57,14 @@ def rasterize(
     if means.device.type != "cpu":
         raise RasterizeInputError(f"backend={backend!r} needs CPU tensors, got tensors on {means.device}")
 
-    projected = project_gaussians(means, quats, scales, viewmat, K, width, height)
-    rgb_per_gaussian = evaluate_colors(colors, means, viewmat)  # (N,3)
+    camera_needs_grad = torch.is_grad_enabled() and (viewmat.requires_grad or K.requires_grad)
+    if backend == "cpu" and not camera_needs_grad:
+        from recondreamer.splat.cpu_kernel import project_cpu
+
+        projected, rgb_per_gaussian = project_cpu(means, quats, scales, colors, viewmat, K, width, height)
+    else:
+        projected = project_gaussians(means, quats, scales, viewmat, K, width, height)
+        rgb_per_gaussian = evaluate_colors(colors, means, viewmat)  # (N,3)
     if backend == "torch":
         ids = torch.nonzero(projected.in_front).squeeze(1)
         rgb, depth_sum, alpha = composite_reference(

@@ -12,6 +12,7 @@ from recondreamer.report.plan import ExperimentPlan
 RESULTS = config["results_dir"]
 EXPERIMENT = config["experiment"]
 TRAJECTORIES = list(EXPERIMENT["trajectories"])
+DD4D_TRAJECTORIES = list(config["methods"]["dd4d_trajectories"])  # generated once per segment, shared by every backbone
 
 
 def results(*parts):
@@ -116,6 +117,7 @@ wildcard_constraints:
     restorer="sd|svd|dd2|dd2_mask",
     arch="sd|svd|dd2",
     stride=r"\d+\.\d+",
+    trajectory=r"shift@-?\d+(\.\d+)?|lane_change",
     run=r"(baseline|dd4d)-(street|pvg|deformable|s3)|recondreamer-(street|pvg|deformable|s3)-(sd|svd|dd2|dd2_mask)-stride\d+\.\d+",
 
 

@@ -3,7 +3,7 @@
 
 RECON_OPTIONS = (
     f"--preset {config['recon']['preset']} --seed {config['recon']['seed']} --backend {config['recon']['backend']} "
-    + option("--iterations", config["recon"]["iterations"])
+    + " ".join(text for text in (option("--iterations", config["recon"]["iterations"]), option("--device", config["recon"]["device"])) if text)
 )
 
 
