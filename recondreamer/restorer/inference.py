@@ -132,6 +132,18 @@ def _sample_clip(
     return blend_windows(num_frames, window, overlap, sample_window)
 
 
+def _encode_conditions(
+    model: GenerativeModel,
+    frames: np.ndarray,  # (T,H,W,3) uint8
+    structure: np.ndarray | None,  # (T,C,H,W) structure maps (dd2 archs)
+    what: str,
+) -> tuple[torch.Tensor, torch.Tensor | None]:  # (T,c,h,w) latents, structure (T,C,H,W) or None
+    """Checked frames -> (latents, structure tensor or None): the conditions every sampler starts from."""
+    _check_frames(model, frames, what)
+    structure_tensor = _prepare_structure(model, structure, frames.shape)
+    return encode_frames(model.autoencoder, frames), structure_tensor
+
+
 def restore_clip(
     restorer: GenerativeModel,
     frames: np.ndarray,  # (T,H,W,3) uint8 degraded renders
@@ -152,10 +164,8 @@ def restore_clip(
     """
     if restorer.kind != "restorer":
         raise RecondreamerError(f"restore_clip needs a restorer, got a {restorer.kind} ({restorer.arch})")
-    _check_frames(restorer, frames, "degraded frames")
-    structure_tensor = _prepare_structure(restorer, structure, frames.shape)
+    degraded_latents, structure_tensor = _encode_conditions(restorer, frames, structure, "degraded frames")
     config = restorer.restore_config
-    degraded_latents = encode_frames(restorer.autoencoder, frames)
     latents = _sample_clip(
         restorer, degraded_latents, structure_tensor, degraded_latents,
         num_steps or config.sample_steps, window or config.window, config.overlap if overlap is None else overlap,
@@ -181,10 +191,8 @@ def generate_clip(
     """Training-free novel-trajectory video from a pretrained world model (DriveDreamer4D)."""
     if world_model.kind != "world_model":
         raise RecondreamerError(f"generate_clip needs a pretrained world model, got a {world_model.kind} ({world_model.arch})")
-    _check_frames(world_model, reference, "reference frames")
-    structure_tensor = _prepare_structure(world_model, structure, reference.shape)
+    reference_latents, structure_tensor = _encode_conditions(world_model, reference, structure, "reference frames")
     config = world_model.restore_config
-    reference_latents = encode_frames(world_model.autoencoder, reference)
     latents = _sample_clip(
         world_model, reference_latents, structure_tensor, None,
         num_steps or world_model.diffusion_config.sample_steps, window or world_model.train_config.window,
