@@ -2,7 +2,8 @@
 
     python benchmarks/methods_gate.py [--configfile config/config.yaml] [--segments synth-01 ...]
         [--backbones street pvg] [--strides 1.5 6] [--methods baseline dd4d recondreamer]
-        [--iterations N] [--restore-strength X] [--cores 1] [--dry-run | --report-only]
+        [--iterations N] [--restore-strength X] [--restorer-checkpoint CKPT] [--oracle] [--cores 1]
+        [--dry-run | --report-only]
 
 Drives the Snakemake workflow with the given config (default: the embedded one), asking only for
 the metric files of the gate's runs (``metrics/<segment>/<run>.json``): baseline-B, dd4d-B and
@@ -19,6 +20,11 @@ verdicts of the paper's finding at shift@6: ReconDreamer better than its baselin
 DriveDreamer4D per metric, stride 1.5 better than stride 6, with the number of segments where
 it holds. ``--report-only`` prints what the metric files on disk give (missing cells shown as
 '-', cells with fewer segments than asked marked with their count).
+
+``--oracle`` adds the same ReconDreamer runs with the oracle restorer (``--restorer truth``: each
+update trains on the true views of the shifted trajectory, rendered by the synthetic world), the
+upper bound of any restorer: where the oracle beats the baseline and DriveRestorer does not, the
+restorer is what is missing; where the oracle does not either, the loop is.
 
 ``--iterations N`` sets ``recon.iterations`` of every run and ``--restore-strength X``
 ``methods.restore_strength`` of the ReconDreamer runs (a second config file merged over the
@@ -53,6 +59,7 @@ SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
 TRAJECTORIES = ("shift@3", "shift@6", "lane_change")
 VERDICT_TRAJECTORY = "shift@6"
 AVERAGE = "Average"
+TRUTH = "truth"  # the oracle restorer of 'train-recondreamer --restorer truth' (synthetic segments only)
 
 
 @dataclass(frozen=True)
@@ -74,7 +81,7 @@ def workflow_config(configfile: Path, results_dir: str | None) -> dict:
     return config
 
 
-def gate_runs(backbones: list[str], strides: list[float], restorer: str, methods: list[str]) -> list[GateRun]:
+def gate_runs(backbones: list[str], strides: list[float], restorer: str, methods: list[str], oracle: bool = False) -> list[GateRun]:
     runs = []
     for backbone in backbones:
         if "baseline" in methods:
@@ -83,6 +90,8 @@ def gate_runs(backbones: list[str], strides: list[float], restorer: str, methods
             runs.append(GateRun("DriveDreamer4D", Method("dd4d", backbone)))
         if "recondreamer" in methods:
             runs += [GateRun(f"ReconDreamer {format_stride(s)} m", Method("recondreamer", backbone, restorer, s)) for s in strides]
+        if oracle:  # the same loop trained on the true shifted views: what a perfect restorer would give
+            runs += [GateRun(f"oracle (true views) {format_stride(s)} m", Method("recondreamer", backbone, TRUTH, s)) for s in strides]
     return runs
 
 
@@ -95,6 +104,8 @@ def run_workflow(args: argparse.Namespace, targets: list[Path]) -> int:
         overrides["recon"] = {"iterations": args.iterations}
     if args.restore_strength is not None:
         overrides["methods"] = {"restore_strength": args.restore_strength}
+    if args.restorer_checkpoint is not None:
+        overrides["restorer"] = {"checkpoints": {args.config["experiment"]["main_restorer"]: str(args.restorer_checkpoint.resolve())}}
     with tempfile.TemporaryDirectory() as scratch:
         configfiles = [str(args.configfile)]
         if overrides:
@@ -159,10 +170,16 @@ def segment_wins(values, segments: list[str], a: str, b: str, trajectory: str, m
 # ---------------------------------------------------------------------------- printing
 
 
+def number(value: float, decimals: int) -> str:
+    """The table's decimals, but at least three for values below 1: the FID of the feature network
+    trained here is about 0.1, which two decimals would round to ties."""
+    return f"{value:.{decimals if abs(value) >= 1 else max(decimals, 3)}f}"
+
+
 def format_cell(value: float | None, count: int, expected: int, decimals: int) -> str:
     if value is None:
         return "-"
-    text = f"{value:.{decimals}f}"
+    text = number(value, decimals)
     return text if count == expected else f"{text} ({count})"
 
 
@@ -180,15 +197,17 @@ def print_comparison(values, segments: list[str], backbone: str, runs: list[Gate
 def verdicts(values, segments: list[str], backbone: str, runs: list[GateRun], main_stride: float, strides: list[float]) -> list[str]:
     """The paper's finding at shift@6, metric by metric: holds / fails / not measured."""
     by_label = {run.label: run.method.run_id for run in runs}
-    ours = by_label.get(f"ReconDreamer {format_stride(main_stride)} m")
     comparisons = []
-    if ours:
-        comparisons += [(f"ReconDreamer {format_stride(main_stride)} m > baseline", ours, by_label.get("baseline")),
-                        (f"ReconDreamer {format_stride(main_stride)} m > DriveDreamer4D", ours, by_label.get("DriveDreamer4D"))]
-    widest = max(strides)
-    if ours and widest != main_stride:
-        comparisons.append((f"stride {format_stride(main_stride)} m > stride {format_stride(widest)} m", ours,
-                            by_label.get(f"ReconDreamer {format_stride(widest)} m")))
+    for name in ("ReconDreamer", "oracle (true views)"):
+        ours = by_label.get(f"{name} {format_stride(main_stride)} m")
+        if ours is None:
+            continue
+        comparisons += [(f"{name} {format_stride(main_stride)} m > baseline", ours, by_label.get("baseline")),
+                        (f"{name} {format_stride(main_stride)} m > DriveDreamer4D", ours, by_label.get("DriveDreamer4D"))]
+        widest = max(strides)
+        if widest != main_stride:
+            comparisons.append((f"{name}: stride {format_stride(main_stride)} m > stride {format_stride(widest)} m", ours,
+                                by_label.get(f"{name} {format_stride(widest)} m")))
     lines = []
     for name, a, b in comparisons:
         if b is None:
@@ -202,7 +221,7 @@ def verdicts(values, segments: list[str], backbone: str, runs: list[GateRun], ma
                 continue
             wins, total = segment_wins(values, segments, a, b, VERDICT_TRAJECTORY, metric.key)
             verdict = "holds" if better(metric.key, x, y) else "FAILS"
-            parts.append(f"{metric.label} {verdict} ({x:.{metric.decimals}f} vs {y:.{metric.decimals}f}; {wins}/{total} segments)")
+            parts.append(f"{metric.label} {verdict} ({number(x, metric.decimals)} vs {number(y, metric.decimals)}; {wins}/{total} segments)")
         lines.append(f"{backbone}: {name} at {VERDICT_TRAJECTORY}: " + "; ".join(parts))
     return lines
 
@@ -221,6 +240,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iterations", type=int, default=None, help="recon.iterations of every run (default: the config's preset)")
     parser.add_argument("--restore-strength", type=float, default=None,
                         help="methods.restore_strength of the ReconDreamer runs, in (0, 1] (default: the config's)")
+    parser.add_argument("--restorer-checkpoint", type=Path, default=None, metavar="CKPT",
+                        help="a local DriveRestorer checkpoint for the ReconDreamer runs instead of the one the workflow "
+                        "trains (restorer.checkpoints); give --results-dir too so its runs do not replace the default ones")
+    parser.add_argument("--oracle", action="store_true",
+                        help="also run ReconDreamer with the oracle restorer (the true views of each shifted trajectory; "
+                        "synthetic segments only) at every stride: separates what PDUS gives from the restorer's quality")
     parser.add_argument("--cores", type=int, default=1, help="Snakemake --cores (default 1: one job at a time)")
     mode = parser.add_mutually_exclusive_group()
     mode.add_argument("--dry-run", action="store_true", help="list the jobs the gate needs (Snakemake dry run) and print nothing else")
@@ -230,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--iterations must be at least 1, got {args.iterations}")
     if args.restore_strength is not None and not 0.0 < args.restore_strength <= 1.0:
         parser.error(f"--restore-strength must lie in (0, 1], got {args.restore_strength}")
+    if args.restorer_checkpoint is not None and not args.restorer_checkpoint.is_file():
+        parser.error(f"--restorer-checkpoint {args.restorer_checkpoint}: file not found")
 
     args.config = workflow_config(args.directory / args.configfile, args.results_dir)
     results_dir = str(args.directory / args.config["results_dir"])
@@ -239,7 +266,9 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         parser.error(f"--segments {unknown} are not segments of {args.configfile} ({', '.join(known)})")
     experiment = args.config["experiment"]
-    runs = gate_runs(args.backbones, args.strides, experiment["main_restorer"], args.methods)
+    if args.oracle and args.config["source"] != "synthetic":
+        parser.error("--oracle needs synthetic segments (the true views of a real recording do not exist)")
+    runs = gate_runs(args.backbones, args.strides, experiment["main_restorer"], args.methods, args.oracle)
     # Targets relative to the workflow directory, as the rules name their outputs.
     targets = [metrics_file(args.config["results_dir"], s, run.method.run_id) for s in segments for run in runs]
 

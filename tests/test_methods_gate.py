@@ -124,3 +124,31 @@ def test_dry_run_asks_the_workflow_for_street_dd4d_and_both_strides(tmp_path, ca
     # Bad arguments stop before Snakemake runs.
     with pytest.raises(SystemExit):
         gate.main(["--directory", str(root), "--configfile", "config/quick.yaml", "--segments", "nowhere", "--dry-run"])
+
+
+def test_oracle_adds_truth_runs_with_no_restorer_behind_them(tmp_path, capfd):
+    pytest.importorskip("snakemake")
+    root = workflow_copy(tmp_path)
+    segments = len(yaml.safe_load((root / "config" / "quick.yaml").read_text())["synthetic"]["segments"])
+    assert gate.main(["--directory", str(root), "--configfile", "config/quick.yaml", "--backbones", "street",
+                      "--methods", "baseline", "recondreamer", "--oracle", "--dry-run"]) == 0
+    counts = dict(re.findall(r"^(\w+)\s+(\d+)$", "".join(capfd.readouterr()).split("Job stats:")[1], flags=re.MULTILINE))
+    assert int(counts["train_recondreamer_truth"]) == 2 * segments  # strides 1.5 and 6
+    assert int(counts["train_recondreamer"]) == 2 * segments
+    assert int(counts["evaluate"]) == 5 * segments  # baseline, 2 restored, 2 oracle
+    runs = gate.gate_runs(["street"], [1.5, 6.0], "dd2_mask", ["recondreamer"], oracle=True)
+    assert [r.method.run_id for r in runs][2:] == ["recondreamer-street-truth-stride1.5", "recondreamer-street-truth-stride6.0"]
+
+
+def test_local_restorer_checkpoint_needs_no_restorer_training(tmp_path, capfd):
+    pytest.importorskip("snakemake")
+    root = workflow_copy(tmp_path)
+    checkpoint = tmp_path / "restorer.pt"
+    checkpoint.write_bytes(b"")  # a dry run only checks that it exists
+    assert gate.main(["--directory", str(root), "--configfile", "config/quick.yaml", "--backbones", "street",
+                      "--methods", "recondreamer", "--restorer-checkpoint", str(checkpoint), "--dry-run"]) == 0
+    counts = dict(re.findall(r"^(\w+)\s+(\d+)$", "".join(capfd.readouterr()).split("Job stats:")[1], flags=re.MULTILINE))
+    assert "train_restorer" not in counts and "pretrain_world_model" not in counts
+    assert int(counts["train_recondreamer"]) >= 2
+    with pytest.raises(SystemExit):
+        gate.main(["--directory", str(root), "--configfile", "config/quick.yaml", "--restorer-checkpoint", str(tmp_path / "absent.pt")])

@@ -48,6 +48,7 @@ from recondreamer.restorer.unet import LatentUNet
 from recondreamer.scene import load_scene, write_scene
 from recondreamer.scene.structure import STRUCTURE_CHANNELS
 from recondreamer.sources.synthetic import generate_segment
+from recondreamer.sources.synthetic.truth import TrueViewRenderer
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -259,3 +260,19 @@ def test_dd4d_reads_videos_generated_once_by_the_dd4d_generate_command(scene, tm
     (other / "info.json").write_text(json.dumps({"scene_id": "another-scene", "trajectory": "shift@3"}))
     with pytest.raises(RecondreamerError, match="another-scene"):
         load_generated_videos(scene, other.parent, ("shift@3",))
+
+
+def test_truth_oracle_trains_on_the_true_views_of_each_shifted_trajectory(scene, tmp_path):
+    from recondreamer.methods.novel import load_video
+    from recondreamer.scene.trajectories import trajectory_cam_to_world
+
+    run = tmp_path / "oracle"
+    schedule = PdusSchedule(stride=1.5, update_every=EVERY, iterations=ITERATIONS)
+    train_recondreamer(scene, small_config(), run, TrueViewRenderer(scene), schedule, restorer_path="truth")
+    assert json.loads((run / PDUS_JSON).read_text())["restorer"] == "truth"
+    for k, offset in ((1, 1.5), (2, 3.0)):
+        video = load_video(run / "updates" / f"update_{k:02d}", (scene.num_frames, scene.height, scene.width, 3))
+        poses = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, f"shift@{offset:g}")
+        np.testing.assert_array_equal(video.frames, TrueViewRenderer(scene).render(poses))
+    expected = np.stack([scene.novel_image("shift@3", t) for t in range(scene.num_frames)])
+    np.testing.assert_array_equal(video.frames, expected)  # shift@3 was also recorded by the generator

@@ -102,6 +102,27 @@ def test_paper_waymo_config_dry_run_job_counts(tmp_path):
     assert all("--generated results/paper-waymo/dd4d_generated/" in line for line in train if "train-dd4d" in line)
 
 
+def test_local_restorer_checkpoint_replaces_training_that_restorer(tmp_path):
+    root = workflow_copy(tmp_path)
+    (root / "my_restorer.pt").write_bytes(b"")  # a dry run only checks that it exists
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["restorer"]["checkpoints"] = {"dd2_mask": "my_restorer.pt"}
+    (root / "local.yaml").write_text(yaml.safe_dump(config))
+    plain = job_counts(snakemake(root, "-n", "--quiet", "rules", "--configfile", "config/quick.yaml").stdout)
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "local.yaml")
+    assert result.returncode == 0, result.stderr
+    assert job_counts(result.stdout) == {**plain, "train_restorer": plain["train_restorer"] - 1,
+                                         "total": plain["total"] - 1}
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "local.yaml", "--until", "train_recondreamer").stdout
+    commands = [line for line in shell.splitlines() if "recondreamer train-recondreamer" in line]
+    assert any("dd2_mask" in line for line in commands)
+    assert all(("--restorer my_restorer.pt" in line) == ("-dd2_mask-" in line) for line in commands)
+    config["restorer"]["checkpoints"] = {"dd2_mask": "absent.pt"}
+    (root / "local.yaml").write_text(yaml.safe_dump(config))
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "local.yaml")
+    assert result.returncode != 0 and "restorer.checkpoints.dd2_mask: file absent.pt not found" in result.stdout + result.stderr
+
+
 def _bad_config(root: Path, edit) -> str:
     config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
     edit(config)

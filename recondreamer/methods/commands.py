@@ -10,6 +10,8 @@ from recondreamer.recon.config import MODEL_TYPES, PRESETS
 
 log = logging.getLogger(__name__)
 
+TRUTH = "truth"  # --restorer value of the oracle restorer
+
 
 def _add_recon_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scene", required=True, metavar="DIR", help="scene directory (docs/scene-format.md)")
@@ -35,7 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "re-running after a kill resumes.",
     )
     _add_recon_options(recon)
-    recon.add_argument("--restorer", required=True, metavar="CKPT", help="DriveRestorer checkpoint (train-restorer output)")
+    recon.add_argument("--restorer", required=True, metavar="CKPT",
+                       help="DriveRestorer checkpoint (train-restorer output), or 'truth': an oracle that returns the true "
+                       "views of each shifted trajectory (synthetic scenes only; the upper bound of any restorer)")
     recon.add_argument("--stride", required=True, type=float, metavar="DY", help="PDUS stride in metres (6 = one jump to 6 m, no PDUS)")
     recon.add_argument("--update-every", type=int, default=None, metavar="S",
                        help="training steps between updates (default: iterations / 5, i.e. four updates)")
@@ -87,15 +91,19 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.methods.pdus import PdusSchedule
     from recondreamer.restorer.inference import load_restorer
     from recondreamer.scene import load_scene
+    from recondreamer.sources.synthetic.truth import TrueViewRenderer
 
     config = _config(args)
     if args.restore_strength is not None and not 0.0 < args.restore_strength <= 1.0:
         raise RecondreamerError(f"--restore-strength must lie in (0, 1], got {args.restore_strength}")
     schedule = PdusSchedule.for_iterations(args.stride, config.iterations, args.update_every, args.max_offset)
     scene = load_scene(args.scene)
-    restorer = load_restorer(args.restorer)
+    if args.restorer == TRUTH:
+        restorer, restorer_path = TrueViewRenderer(scene), TRUTH
+    else:
+        restorer, restorer_path = load_restorer(args.restorer), str(Path(args.restorer).resolve())
     model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_steps,
-                               restorer_path=str(Path(args.restorer).resolve()), restore_strength=args.restore_strength)
+                               restorer_path=restorer_path, restore_strength=args.restore_strength)
     log.info("done: ReconDreamer %s (stride %g m) with %d Gaussians in %s", args.model, args.stride,
              len(model.gaussians), args.out)
     return 0

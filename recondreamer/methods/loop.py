@@ -35,6 +35,7 @@ from recondreamer.recon.config import ReconConfig
 from recondreamer.recon.data import TrainingSet
 from recondreamer.recon.render import render_frames
 from recondreamer.scene.trajectories import lateral_offsets, trajectory_cam_to_world
+from recondreamer.sources.synthetic.truth import TrueViewRenderer
 
 # A child of the trainer's logger, so update lines land in RUN/train.log between progress lines.
 logger = logging.getLogger("recondreamer.recon.pdus")
@@ -52,7 +53,11 @@ def shift_name(offset: float) -> str:
 
 
 class ProgressiveDataUpdate:
-    """Trainer callback running Algorithm 1 with a DriveRestorer (``restorer.inference`` model)."""
+    """Trainer callback running Algorithm 1 with a DriveRestorer (``restorer.inference`` model).
+
+    ``restorer`` may instead be a ``TrueViewRenderer`` (synthetic scenes only): each update then
+    trains on the true views of the shifted trajectory, the upper bound of any restorer.
+    """
 
     def __init__(self, scene, restorer, schedule: PdusSchedule, run_dir: str | Path | None,
                  backend: str = "auto", restore_steps: int | None = None, seed: int = 0,
@@ -104,9 +109,12 @@ class ProgressiveDataUpdate:
         started = time.monotonic()
         poses = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, shift_name(offset))
         rendered, _ = render_frames(trainer.model, scene, poses, backend=self.backend)  # (T,H,W,3)
-        structure = scene_structure(scene, poses)  # (T,C,H,W) uint8, boxes + map in the shifted cameras
-        restored = restore_clip(self.restorer, rendered, structure, num_steps=self.restore_steps,
-                                strength=self.restore_strength, seed=self.seed + k)
+        if isinstance(self.restorer, TrueViewRenderer):  # the oracle: what a perfect restorer would return
+            restored = self.restorer.render(poses)
+        else:
+            structure = scene_structure(scene, poses)  # (T,C,H,W) uint8, boxes + map in the shifted cameras
+            restored = restore_clip(self.restorer, rendered, structure, num_steps=self.restore_steps,
+                                    strength=self.restore_strength, seed=self.seed + k)
         weights = video_weights(k)
         video = NovelVideo(
             source=f"pdus{k}@{offset:g}m",

@@ -83,6 +83,9 @@ def _check_config():
         path = config["eval_models"][key]
         if path is not None and not os.path.isfile(path):
             problems.append(f"eval_models.{key}: file {path} not found")
+    for arch, path in config["restorer"]["checkpoints"].items():
+        if path is not None and not os.path.isfile(path):
+            problems.append(f"restorer.checkpoints.{arch}: file {path} not found")
     if config["eval_models"]["holdout_scenes"] >= config["synthetic"]["corpus"]["num_scenes"]:
         problems.append("eval_models.holdout_scenes must be smaller than synthetic.corpus.num_scenes")
     if config["restorer"]["pair_corpus_scenes"] > config["synthetic"]["corpus"]["num_scenes"]:
@@ -118,7 +121,7 @@ wildcard_constraints:
     arch="sd|svd|dd2",
     stride=r"\d+\.\d+",
     trajectory=r"shift@-?\d+(\.\d+)?|lane_change",
-    run=r"(baseline|dd4d)-(street|pvg|deformable|s3)|recondreamer-(street|pvg|deformable|s3)-(sd|svd|dd2|dd2_mask)-stride\d+\.\d+",
+    run=r"(baseline|dd4d)-(street|pvg|deformable|s3)|recondreamer-(street|pvg|deformable|s3)-(sd|svd|dd2|dd2_mask|truth)-stride\d+\.\d+",
 
 
 # ------------------------------------------------------------------------------------ paths
@@ -149,6 +152,11 @@ def eval_model_files():
     """Trained evaluation models that the evaluation uses (those not replaced by a configured local file)."""
     trained = {"detector": "vehicle_detector.pt", "lane_model": "lane_segmenter.pt", "fid_model": "fid_features.pt"}
     return [results("eval_models", name) for key, name in trained.items() if config["eval_models"][key] is None]
+
+
+def restorer_checkpoint(arch):
+    """The DriveRestorer the ReconDreamer runs use: the configured local file, else the one trained here."""
+    return config["restorer"]["checkpoints"].get(arch) or results("models", f"restorer_{arch}.pt")
 
 
 def win_rates_file():

@@ -15,7 +15,7 @@ PDUS_OPTIONS = " ".join(
 rule train_recondreamer:
     input:
         scene=results("scenes", "{segment}"),
-        restorer=results("models", "restorer_{restorer}.pt"),
+        restorer=lambda wildcards: restorer_checkpoint(wildcards.restorer),
     output:
         results("runs", "{segment}", "recondreamer-{backbone}-{restorer}-stride{stride}", "model.pt"),
     params:
@@ -30,6 +30,29 @@ rule train_recondreamer:
     shell:
         "recondreamer train-recondreamer --scene {input.scene} --model {wildcards.backbone} "
         "--restorer {input.restorer} --stride {wildcards.stride} --out {params.run} {params.options} {params.pdus} "
+        "--threads {threads} > {log} 2>&1"
+
+
+# The oracle: ReconDreamer trained on the true views of each shifted trajectory instead of
+# restored renders (synthetic segments only). Not a table row; the upper bound that issue 7's
+# gate (benchmarks/methods_gate.py --oracle) compares against to separate PDUS from restorer quality.
+rule train_recondreamer_truth:
+    input:
+        scene=results("scenes", "{segment}"),
+    output:
+        results("runs", "{segment}", "recondreamer-{backbone}-truth-stride{stride}", "model.pt"),
+    params:
+        run=lambda wildcards: run_dir(RESULTS, wildcards.segment, f"recondreamer-{wildcards.backbone}-truth-stride{wildcards.stride}"),
+        options=RECON_OPTIONS,
+        pdus=PDUS_OPTIONS,
+    threads: config["threads"]["recon"]
+    log:
+        log_file("train_recondreamer_truth", "{segment}/{backbone}-stride{stride}"),
+    benchmark:
+        benchmark_file("train_recondreamer_truth", "{segment}/{backbone}-stride{stride}")
+    shell:
+        "recondreamer train-recondreamer --scene {input.scene} --model {wildcards.backbone} "
+        "--restorer truth --stride {wildcards.stride} --out {params.run} {params.options} {params.pdus} "
         "--threads {threads} > {log} 2>&1"
 
 

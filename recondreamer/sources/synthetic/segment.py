@@ -15,6 +15,7 @@ from recondreamer.sources.synthetic.config import SyntheticConfig, make_config
 from recondreamer.sources.synthetic.render import BOX, SpinningLidarRays, cast, render_view
 from recondreamer.sources.synthetic.world import World, build_world
 
+GENERATOR = "recondreamer.sources.synthetic"  # metadata["generator"] of every synthetic scene
 GENERATOR_VERSION = 1  # bump when the same seed would give different bytes
 LIDAR_MOUNT = np.array([1.2, 0.0, 2.0])  # ego frame: LiDAR on the roof
 LIDAR_ELEVATIONS_DEG = (-22.0, 6.0)  # lowest and highest ring
@@ -156,7 +157,7 @@ def generate_segment(seed: int, preset: str = "default", scene_id: str | None = 
         track_ids=world.track_ids,
         novel=novel,
         metadata={
-            "generator": "recondreamer.sources.synthetic",
+            "generator": GENERATOR,
             "generator_version": GENERATOR_VERSION,
             "seed": int(seed),
             "preset": preset,
