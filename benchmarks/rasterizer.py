@@ -73,8 +73,9 @@ def stage_breakdown(scene, width: int, height: int, repeats: int) -> list[tuple[
     """The ``"cpu"`` backend's stages timed one at a time on the same inputs: (stage, (wall, CPU) ms).
 
     Backward stages are timed with ``torch.autograd.grad(..., retain_graph=True)`` on a graph
-    built once; "glue" is the full forward+backward minus the stages (autograd engine, input
-    packing, background and depth normalisation, Python)."""
+    built once, the projection's with the compositor's own gradients; "glue" is the full
+    forward+backward minus the stages (autograd engine, background and depth normalisation,
+    Python)."""
     from recondreamer.splat.cpu_kernel import composite_cpu, project_cpu
     from recondreamer.splat.validation import validate_inputs
 
@@ -95,17 +96,20 @@ def stage_breakdown(scene, width: int, height: int, repeats: int) -> list[tuple[
             ("projection+SH fwd", time_call(lambda: project_cpu(means, quats, scales, colors, viewmat, K, width, height), repeats))
         )
     splats = [t.detach().requires_grad_() for t in (projected.means2d, projected.conics, rgb, projected.depths)]
-    visible_opacities = torch.where(projected.in_front, opacities, torch.zeros_like(opacities)).requires_grad_()
-    inputs = (splats[0], splats[1], splats[2], visible_opacities, splats[3])
+    inputs = (splats[0], splats[1], splats[2], opacities.clone().requires_grad_(), splats[3])
+    keep = projected.in_front
     with torch.no_grad():
-        stages.append(("composite fwd", time_call(lambda: composite_cpu(*inputs, width, height), repeats)))
-    images = composite_cpu(*inputs, width, height)
+        stages.append(("composite fwd", time_call(lambda: composite_cpu(*inputs, width, height, keep), repeats)))
+    images = composite_cpu(*inputs, width, height, keep)
     image_grads = [torch.rand_like(image) for image in images]
     stages.append(
         ("composite bwd", time_call(lambda: torch.autograd.grad(images, inputs, image_grads, retain_graph=True), repeats))
     )
     splat_outputs = (projected.means2d, projected.conics, rgb, projected.depths)
-    splat_grads = [torch.rand_like(t) for t in splat_outputs]
+    # The compositor's own gradients: zero for the splats that no pixel depends on, which the
+    # projection's backward pass skips.
+    composite_grads = torch.autograd.grad(images, inputs, image_grads, retain_graph=True)
+    splat_grads = [composite_grads[i] for i in (0, 1, 2, 4)]
     projection_inputs = (params[0], params[1], params[2], params[4])
     stages.append(
         (

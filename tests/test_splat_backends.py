@@ -187,3 +187,61 @@ def test_cpu_kernel_is_deterministic_across_thread_counts():
         assert torch.equal(single[name], double[name]), name  # per-pixel work never depends on threads
     for name in ("grad_means", "grad_opacities"):
         torch.testing.assert_close(single[name], double[name], rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_dense_multi_tile_scene_with_early_termination_matches_reference(dtype):
+    # 5x4 tiles (the last column and row partial, an odd height for the 2-row pixel groups),
+    # opaque splats: most pixels finish early, so the forward pass skips finished groups and the
+    # backward pass starts at each pixel's last splat and visits only the groups the forward
+    # pass listed for each (splat, tile).
+    width, height = 70, 51
+    viewmat, K = camera(width, height, dtype)
+    means, quats, scales, opacities, colors = random_scene(400, seed=21, dtype=torch.float64, spread=0.8)
+    scales, opacities = scales * 3.0, 0.6 + 0.4 * opacities
+    scene = [t.to(dtype) for t in (means, quats, scales, opacities, colors)]
+    expected = assert_matches_reference("cpu", scene, viewmat, K, width, height)
+    assert (expected["alpha"] > 0.999).float().mean() > 0.5  # most pixels are (nearly) opaque
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_composite_keep_mask_matches_reference_on_kept_splats(dtype):
+    # composite_cpu(..., keep) composites only the kept splats (rasterize passes the in-front
+    # mask this way) and gives the others zero gradients.
+    from recondreamer.splat.cpu_kernel import composite_cpu
+    from recondreamer.splat.reference import composite_reference
+
+    width, height = 40, 30
+    g = torch.Generator().manual_seed(4)
+    count = 120
+    axes = torch.randn(count, 2, 2, generator=g, dtype=torch.float64) * 2.0
+    covariances = axes @ axes.transpose(1, 2) + 0.3 * torch.eye(2, dtype=torch.float64)
+    inverse = torch.linalg.inv(covariances)
+    fields = [
+        torch.rand(count, 2, generator=g, dtype=torch.float64) * torch.tensor([width, height], dtype=torch.float64),
+        torch.stack([inverse[:, 0, 0], inverse[:, 0, 1], inverse[:, 1, 1]], dim=-1),
+        torch.rand(count, 3, generator=g, dtype=torch.float64),
+        torch.rand(count, generator=g, dtype=torch.float64),
+        torch.rand(count, generator=g, dtype=torch.float64) * 10 + 1,
+    ]
+    fields = [t.to(dtype) for t in fields]
+    keep = torch.rand(count, generator=g) < 0.7
+    weights = torch.randn(height, width, 5, generator=g, dtype=torch.float64).to(dtype)
+
+    def loss(rgb, depth, alpha):
+        return (rgb * weights[..., :3]).sum() + (depth * weights[..., 3]).sum() * 0.1 + (alpha * weights[..., 4]).sum()
+
+    actual_inputs = [t.clone().requires_grad_() for t in fields]
+    actual = composite_cpu(*actual_inputs, width, height, keep)
+    loss(*actual).backward()
+    expected_inputs = [t.clone().requires_grad_() for t in fields]
+    expected = composite_reference(*(t[keep] for t in expected_inputs), width, height)
+    loss(*expected).backward()
+    tolerance = TOLERANCE[dtype]
+    for name, got, want in zip(("rgb", "depth", "alpha"), actual, expected):
+        error = (got - want).abs().max().item()
+        assert error <= tolerance * (1 + want.abs().max().item()), name
+    for index, (got, want) in enumerate(zip(actual_inputs, expected_inputs)):
+        error = (got.grad - want.grad).abs().max().item()
+        assert error <= tolerance * (1 + want.grad.abs().max().item()), f"gradient of field {index}"
+        assert torch.all(got.grad[~keep] == 0), f"gradient of field {index} outside keep"

@@ -59,14 +59,19 @@ def gaussians(count: int, dtype: torch.dtype, sh_coefficients: int | None, seed:
     return [t.to(dtype) for t in (means, quats, scales, colors)]
 
 
-def outputs_and_grads(project, inputs, viewmat, K):
-    """Run one projection, back-propagate fixed random weights on every differentiable output."""
+def outputs_and_grads(project, inputs, viewmat, K, active=None):
+    """Run one projection, back-propagate fixed random weights on every differentiable output.
+
+    ``active``: optional (4,N) bool, which Gaussians get a nonzero weight on means2d, conics,
+    depths and rgb (in that order); None = all."""
     params = [t.detach().clone().requires_grad_() for t in inputs]
     projected, rgb = project(*params, viewmat, K)
     g = torch.Generator().manual_seed(3)
     loss = 0.0
-    for tensor in (projected.means2d, projected.conics, projected.depths, rgb):
+    for index, tensor in enumerate((projected.means2d, projected.conics, projected.depths, rgb)):
         weights = torch.randn(tensor.shape, generator=g, dtype=torch.float64).to(tensor.dtype)
+        if active is not None:
+            weights = weights * active[index].reshape((-1,) + (1,) * (tensor.dim() - 1)).to(weights.dtype)
         loss = loss + (tensor * weights).sum()
     loss.backward()
     values = {
@@ -115,6 +120,28 @@ def test_fused_projection_matches_torch(dtype, sh_coefficients):
         assert bool((error <= TOLERANCE[dtype] * scale).all()), (
             f"{name}: Gaussian {worst} max abs error {error[worst]:.3g} (scale {scale[worst]:.3g})"
         )
+
+
+@pytest.mark.parametrize("sh_coefficients", [None, 9])
+def test_gaussians_without_incoming_gradient_get_zeros_and_the_rest_are_exact(sh_coefficients):
+    # The fused backward skips a Gaussian whose incoming gradients are all zero (no output depends
+    # on it); one nonzero incoming gradient on any single output must still reach the inputs.
+    viewmat, K = camera(torch.float64)
+    inputs = gaussians(64, torch.float64, sh_coefficients, seed=8)
+    pattern = torch.arange(64) % 6  # 0: none, 1-4: only one output, 5: all outputs
+    active = torch.stack([(pattern == k + 1) | (pattern == 5) for k in range(4)])  # (4,N)
+    expected = outputs_and_grads(torch_projection, inputs, viewmat, K, active)
+    actual = outputs_and_grads(fused_projection, inputs, viewmat, K, active)
+    for name in ("grad_means", "grad_quats", "grad_scales") + (("grad_colors",) if sh_coefficients else ()):
+        want, got = expected[name], actual[name]
+        assert bool((got[pattern == 0] == 0).all()), name
+        scale = 1.0 + want.reshape(64, -1).abs().amax(dim=1)  # (N,)
+        error = (got - want).reshape(64, -1).abs().amax(dim=1)
+        assert bool((error <= TOLERANCE[torch.float64] * scale).all()), name
+    in_front = expected["in_front"]
+    for k in range(1, 5):  # each output alone moves the means of the Gaussians in front
+        if k < 4 or sh_coefficients:
+            assert bool((expected["grad_means"][(pattern == k) & in_front].abs().sum(-1) > 0).any()), k
 
 
 def test_fused_projection_clamps_dark_sh_colours_like_torch():

@@ -28,13 +28,15 @@ from recondreamer.splat.projection import ProjectedGaussians
 SOURCE_DIR = Path(__file__).with_name("csrc")
 SOURCES = (SOURCE_DIR / "rasterize_cpu.cpp",)
 HEADERS = (SOURCE_DIR / "projection.h", SOURCE_DIR / "tile_compositor.h")
-# -ffp-contract=off: no FMA contraction, so the reference's arithmetic is followed op by op.
+# -ffp-contract=off: no FMA contraction, so the projection follows the reference's arithmetic op by
+# op; the compositor's hot loops fuse multiply-adds explicitly (tile_compositor.h, mul_add).
 # -fno-trapping-math lets the compiler evaluate masked-off lanes without caring about FP traps.
 BASE_FLAGS = ("-O3", "-ffp-contract=off", "-fno-math-errno", "-fno-trapping-math")
 # at::parallel_for is a header template: without -fopenmp it silently runs serially, even
 # though torch itself is built with OpenMP. The extension links to the libgomp.so.1 that torch
 # has already loaded, so both share one thread pool and torch.set_num_threads applies.
 OPENMP_FLAGS = ("-fopenmp",)
+AVX2_FLAGS = ("-mavx2", "-mfma")
 AVX512_FLAGS = ("-mavx512f", "-mavx512vl", "-mavx512dq")
 
 _lock = threading.Lock()
@@ -61,13 +63,15 @@ def compiler_flags() -> tuple[str, ...]:
     if platform.machine().lower() not in ("x86_64", "amd64"):
         return flags
     capability = torch.backends.cpu.get_cpu_capability()
+    # torch reports AVX2 only where the CPU also has FMA3, which the compositor's explicit
+    # multiply-adds use (-ffp-contract=off still keeps the compiler from fusing anything else).
     if capability == "AVX512":
         # Still 8-float vectors; AVX-512VL adds 16 more vector registers, which the backward
-        # pass's ten gradient accumulators need (measured: backward 47 -> 42 ms CPU at 50k splats,
+        # pass's gradient accumulators need (measured: backward 47 -> 42 ms CPU at 50k splats,
         # one thread).
-        return flags + ("-mavx2",) + AVX512_FLAGS
+        return flags + AVX2_FLAGS + AVX512_FLAGS
     if capability == "AVX2":
-        return flags + ("-mavx2",)
+        return flags + AVX2_FLAGS
     return flags
 
 
@@ -177,24 +181,27 @@ def project_cpu(
 
 
 class _CompositeTiles(torch.autograd.Function):
-    """Autograd wrapper: packed splats (M,10) -> rgb (H,W,3), depth (H,W), alpha (H,W)."""
+    """Autograd wrapper: splats -> rgb (H,W,3), depth (H,W), alpha (H,W); the C++ side packs the
+    fields into one (M,10) array and hands the gradients back field by field."""
 
     @staticmethod
-    def forward(ctx, packed: torch.Tensor, width: int, height: int):
+    def forward(ctx, means2d, conics, colors, opacities, depths, keep, width: int, height: int):
         extension = load_extension()
-        rgb, depth, alpha, transmittance, last, offsets, ids, boxes = extension.composite_forward(packed, width, height)
-        ctx.save_for_backward(packed, transmittance, last, offsets, ids, boxes)
+        rgb, depth, alpha, *tile_state = extension.composite_forward(
+            means2d, conics, colors, opacities, depths, keep, width, height
+        )
+        ctx.save_for_backward(*tile_state)  # packed, transmittance, last, offsets, ids, boxes, reached
         ctx.size = (width, height)
         return rgb, depth, alpha
 
     @staticmethod
     def backward(ctx, grad_rgb: torch.Tensor, grad_depth: torch.Tensor, grad_alpha: torch.Tensor):
-        packed, transmittance, last, offsets, ids, boxes = ctx.saved_tensors
+        packed, *tile_state = ctx.saved_tensors
         width, height = ctx.size
-        grad_packed = load_extension().composite_backward(
-            packed, width, height, transmittance, last, offsets, ids, boxes, grad_rgb, grad_depth, grad_alpha
-        )
-        return grad_packed, None, None
+        grads = load_extension().composite_backward(
+            packed, width, height, *tile_state, grad_rgb, grad_depth, grad_alpha
+        )  # means2d, conics, colors, opacities, depths
+        return (*grads, None, None, None)  # no gradient for keep, width, height
 
 
 def composite_cpu(
@@ -205,7 +212,10 @@ def composite_cpu(
     depths: torch.Tensor,  # (M,)
     width: int,
     height: int,
+    keep: torch.Tensor | None = None,  # (M,) bool: splats to composite; None = all
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Same contract as :func:`recondreamer.splat.reference.composite_reference`, in C++."""
-    packed = torch.cat([means2d, conics, colors, opacities[:, None], depths[:, None]], dim=1)  # (M,10)
-    return _CompositeTiles.apply(packed.contiguous(), width, height)
+    """Same contract as :func:`recondreamer.splat.reference.composite_reference` (on the splats
+    with ``keep`` true), in C++."""
+    if keep is None:
+        keep = torch.ones(means2d.shape[0], dtype=torch.bool, device=means2d.device)
+    return _CompositeTiles.apply(means2d, conics, colors, opacities, depths, keep, width, height)

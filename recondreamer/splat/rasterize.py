@@ -79,10 +79,16 @@ def rasterize(
     else:
         from recondreamer.splat.cpu_kernel import composite_cpu
 
-        # Zero opacity takes the culled splats out of the kernel without a gather and scatter.
-        visible_opacities = torch.where(projected.in_front, opacities, torch.zeros_like(opacities))
+        # The kernel gives the splats behind the near plane zero opacity: no gather and scatter.
         rgb, depth_sum, alpha = composite_cpu(
-            projected.means2d, projected.conics, rgb_per_gaussian, visible_opacities, projected.depths, width, height
+            projected.means2d,
+            projected.conics,
+            rgb_per_gaussian,
+            opacities,
+            projected.depths,
+            width,
+            height,
+            keep=projected.in_front,
         )
 
     if background is not None:

@@ -99,7 +99,8 @@ def validate_inputs(
     # One min/max reduction per tensor (NaN propagates through both, inf shows in one) and one
     # transfer for all of them: element-wise isfinite/compare/any chains cost milliseconds at 50k.
     nonempty = [(name, value.detach()) for name, value in named if value.numel() > 0]
-    squared_quat_norms = quats.detach().square().sum(dim=-1) if n > 0 else None  # (N,)
+    # A product with ones: the row sum over 4 columns as a reduction kernel costs 3x more at 50k.
+    squared_quat_norms = quats.detach().square() @ quats.new_ones(4) if n > 0 else None  # (N,)
     reductions = [torch.stack(torch.aminmax(value)) for _, value in nonempty]
     if squared_quat_norms is not None:
         reductions.append(squared_quat_norms.amin()[None])

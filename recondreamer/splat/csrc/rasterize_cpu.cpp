@@ -20,11 +20,53 @@ struct AtenParallelFor {
 };
 
 void check_packed(const at::Tensor& packed) {
-  TORCH_CHECK(packed.device().is_cpu(), "packed splats must be on the CPU");
+  TORCH_CHECK(packed.device().is_cpu() && packed.is_contiguous(), "packed splats must be contiguous on the CPU");
   TORCH_CHECK(packed.dim() == 2 && packed.size(1) == rs::kFields, "packed splats must have shape (M, 10)");
   TORCH_CHECK(packed.scalar_type() == at::kFloat || packed.scalar_type() == at::kDouble,
               "packed splats must be float32 or float64");
   TORCH_CHECK(packed.size(0) < (int64_t(1) << 31), "too many splats");
+}
+
+constexpr int64_t kSplatsPerTask = 4096;
+
+// The splats' fields side by side, (M,10) = [mean (2), conic (3), rgb (3), opacity, depth], with
+// the opacity of the splats outside `keep` set to 0 (the compositor then leaves them out).
+at::Tensor pack_splats(const at::Tensor& means2d, const at::Tensor& conics, const at::Tensor& colors,
+                       const at::Tensor& opacities, const at::Tensor& depths, const at::Tensor& keep) {
+  const int64_t m = means2d.size(0);
+  const auto dtype = means2d.scalar_type();
+  TORCH_CHECK(dtype == at::kFloat || dtype == at::kDouble, "splats must be float32 or float64");
+  TORCH_CHECK(m < (int64_t(1) << 31), "too many splats");
+  TORCH_CHECK(means2d.sizes() == at::IntArrayRef({m, 2}) && conics.sizes() == at::IntArrayRef({m, 3}) &&
+                  colors.sizes() == at::IntArrayRef({m, 3}) && opacities.sizes() == at::IntArrayRef({m}) &&
+                  depths.sizes() == at::IntArrayRef({m}) && keep.sizes() == at::IntArrayRef({m}),
+              "splat fields must have shapes (M,2), (M,3), (M,3), (M,), (M,), (M,)");
+  TORCH_CHECK(keep.scalar_type() == at::kBool, "keep must be a bool tensor");
+  at::Tensor packed = at::empty({m, rs::kFields}, means2d.options());
+  const at::Tensor fields[5] = {means2d.contiguous(), conics.contiguous(), colors.contiguous(),
+                                opacities.contiguous(), depths.contiguous()};
+  const at::Tensor kept = keep.contiguous();
+  for (const at::Tensor& field : fields)
+    TORCH_CHECK(field.device().is_cpu() && field.scalar_type() == dtype,
+                "splat fields must be CPU tensors of one dtype");
+  AT_DISPATCH_FLOATING_TYPES(dtype, "pack_splats", [&] {
+    const scalar_t *mean = fields[0].data_ptr<scalar_t>(), *conic = fields[1].data_ptr<scalar_t>();
+    const scalar_t *rgb = fields[2].data_ptr<scalar_t>(), *opacity = fields[3].data_ptr<scalar_t>();
+    const scalar_t* depth = fields[4].data_ptr<scalar_t>();
+    const bool* is_kept = kept.data_ptr<bool>();
+    scalar_t* out = packed.data_ptr<scalar_t>();
+    at::parallel_for(0, m, kSplatsPerTask, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) {
+        scalar_t* s = out + i * rs::kFields;
+        s[0] = mean[2 * i], s[1] = mean[2 * i + 1];
+        s[2] = conic[3 * i], s[3] = conic[3 * i + 1], s[4] = conic[3 * i + 2];
+        s[5] = rgb[3 * i], s[6] = rgb[3 * i + 1], s[7] = rgb[3 * i + 2];
+        s[8] = is_kept[i] ? opacity[i] : scalar_t(0);
+        s[9] = depth[i];
+      }
+    });
+  });
+  return packed;
 }
 
 constexpr int64_t kGaussiansPerTask = 1024;
@@ -118,47 +160,70 @@ std::vector<at::Tensor> project_backward(const at::Tensor& means, const at::Tens
 // A PixelBox travels to the backward pass as 5 int32 of a (M,5) tensor.
 static_assert(sizeof(rs::PixelBox) == 5 * sizeof(int32_t), "PixelBox must be five 4-byte fields");
 
-// Returns rgb (H,W,3), depth (H,W) accumulated, alpha (H,W), and for the backward pass:
-// transmittance (H,W), last (H,W) int32, tile offsets (tiles+1) int32, tile ids (pairs) int32,
-// support boxes (M,5) int32.
-std::vector<at::Tensor> composite_forward(const at::Tensor& packed_in, int64_t width, int64_t height) {
-  check_packed(packed_in);
+namespace {
+
+// A tensor that takes over a vector's memory (no copy); the vector is freed with the tensor.
+template <typename T>
+at::Tensor adopt(std::vector<T>&& values, at::IntArrayRef sizes, at::ScalarType dtype) {
+  const auto options = at::TensorOptions().dtype(dtype);
+  if (values.empty()) return at::empty(sizes, options);
+  auto* owner = new std::vector<T>(std::move(values));
+  return at::from_blob(owner->data(), sizes, [owner](void*) { delete owner; }, options);
+}
+
+}  // namespace
+
+// Composites the splats with keep[i] true. Returns rgb (H,W,3), depth (H,W) accumulated, alpha
+// (H,W), and for the backward pass: packed splats (M,10), transmittance (H,W), last (H,W) int32,
+// tile offsets (tiles+1) int32, tile ids (entries) int32, support boxes (M,5) int32, reached groups
+// (entries) int64.
+std::vector<at::Tensor> composite_forward(const at::Tensor& means2d, const at::Tensor& conics,
+                                          const at::Tensor& colors, const at::Tensor& opacities,
+                                          const at::Tensor& depths, const at::Tensor& keep, int64_t width,
+                                          int64_t height) {
   TORCH_CHECK(width > 0 && height > 0, "width and height must be positive");
-  const at::Tensor packed = packed_in.contiguous();
+  const at::Tensor packed = pack_splats(means2d, conics, colors, opacities, depths, keep);
   const auto options = packed.options();
   at::Tensor rgb = at::empty({height, width, 3}, options);
   at::Tensor depth = at::empty({height, width}, options);
   at::Tensor alpha = at::empty({height, width}, options);
   at::Tensor transmittance = at::empty({height, width}, options);
   at::Tensor last = at::empty({height, width}, options.dtype(at::kInt));
-  at::Tensor offsets, ids, boxes = at::empty({packed.size(0), 5}, options.dtype(at::kInt));
+  at::Tensor offsets, ids, boxes, reached;
   AT_DISPATCH_FLOATING_TYPES(packed.scalar_type(), "composite_forward", [&] {
     const rs::ForwardOutputs<scalar_t> out{rgb.data_ptr<scalar_t>(), depth.data_ptr<scalar_t>(),
                                            alpha.data_ptr<scalar_t>(), transmittance.data_ptr<scalar_t>(),
                                            last.data_ptr<int32_t>()};
-    const rs::Binning binning = rs::composite_forward(packed.data_ptr<scalar_t>(), packed.size(0), width, height,
-                                                      at::get_num_threads(), AtenParallelFor(), out);
-    offsets = at::tensor(binning.offsets, options.dtype(at::kInt));
-    ids = at::tensor(binning.ids, options.dtype(at::kInt));
-    std::memcpy(boxes.data_ptr<int32_t>(), binning.boxes.data(), binning.boxes.size() * sizeof(rs::PixelBox));
+    rs::Binning binning = rs::composite_forward(packed.data_ptr<scalar_t>(), packed.size(0), width, height,
+                                                at::get_num_threads(), AtenParallelFor(), out);
+    const int64_t entries = static_cast<int64_t>(binning.ids.size());
+    const int64_t tiles = static_cast<int64_t>(binning.offsets.size()) - 1;
+    offsets = adopt(std::move(binning.offsets), {tiles + 1}, at::kInt);
+    ids = adopt(std::move(binning.ids), {entries}, at::kInt);
+    boxes = adopt(std::move(binning.boxes), {packed.size(0), 5}, at::kInt);
+    reached = adopt(std::move(binning.reached), {entries}, at::kLong);
   });
-  return {rgb, depth, alpha, transmittance, last, offsets, ids, boxes};
+  return {rgb, depth, alpha, packed, transmittance, last, offsets, ids, boxes, reached};
 }
 
-// Gradient (M,10) of the loss with respect to the packed splats.
-at::Tensor composite_backward(const at::Tensor& packed_in, int64_t width, int64_t height,
-                              const at::Tensor& transmittance_in, const at::Tensor& last_in,
-                              const at::Tensor& offsets_in, const at::Tensor& ids_in, const at::Tensor& boxes_in,
-                              const at::Tensor& grad_rgb_in, const at::Tensor& grad_depth_in,
-                              const at::Tensor& grad_alpha_in) {
-  check_packed(packed_in);
-  const at::Tensor packed = packed_in.contiguous();
+// Gradients of the loss with respect to the splats' means2d (M,2), conics (M,3), colors (M,3),
+// opacities (M,) and depths (M,): the sum of the workers' buffers, written field by field.
+std::vector<at::Tensor> composite_backward(const at::Tensor& packed, int64_t width, int64_t height,
+                                           const at::Tensor& transmittance_in, const at::Tensor& last_in,
+                                           const at::Tensor& offsets_in, const at::Tensor& ids_in,
+                                           const at::Tensor& boxes_in, const at::Tensor& reached_in,
+                                           const at::Tensor& grad_rgb_in, const at::Tensor& grad_depth_in,
+                                           const at::Tensor& grad_alpha_in) {
+  check_packed(packed);
   const auto dtype = packed.scalar_type();
   const at::Tensor transmittance = transmittance_in.contiguous();
   const at::Tensor last = last_in.contiguous(), offsets = offsets_in.contiguous(), ids = ids_in.contiguous();
-  const at::Tensor boxes = boxes_in.contiguous();
+  const at::Tensor boxes = boxes_in.contiguous(), reached = reached_in.contiguous();
   TORCH_CHECK(boxes.sizes() == at::IntArrayRef({packed.size(0), 5}) && boxes.scalar_type() == at::kInt,
               "boxes must be the (M,5) int32 tensor of the forward pass");
+  TORCH_CHECK(offsets.scalar_type() == at::kInt && ids.scalar_type() == at::kInt &&
+                  reached.scalar_type() == at::kLong && reached.numel() == ids.numel() && offsets.numel() >= 1,
+              "tile lists must be the tensors of the forward pass");
   const at::Tensor grad_rgb = grad_rgb_in.to(dtype).contiguous();
   const at::Tensor grad_depth = grad_depth_in.to(dtype).contiguous();
   const at::Tensor grad_alpha = grad_alpha_in.to(dtype).contiguous();
@@ -168,24 +233,43 @@ at::Tensor composite_backward(const at::Tensor& packed_in, int64_t width, int64_
   const int64_t count = packed.size(0);
   const int64_t workers = at::get_num_threads();
   at::Tensor buffers = at::zeros({workers, count, rs::kFields}, packed.options());
+  const auto options = packed.options();
+  at::Tensor grad_means2d = at::empty({count, 2}, options), grad_conics = at::empty({count, 3}, options);
+  at::Tensor grad_colors = at::empty({count, 3}, options), grad_opacities = at::empty({count}, options);
+  at::Tensor grad_depths = at::empty({count}, options);
   AT_DISPATCH_FLOATING_TYPES(dtype, "composite_backward", [&] {
-    rs::Binning binning;
-    binning.offsets.assign(offsets.data_ptr<int32_t>(), offsets.data_ptr<int32_t>() + offsets.numel());
-    binning.ids.assign(ids.data_ptr<int32_t>(), ids.data_ptr<int32_t>() + ids.numel());
-    binning.boxes.resize(boxes.size(0));
-    std::memcpy(binning.boxes.data(), boxes.data_ptr<int32_t>(), binning.boxes.size() * sizeof(rs::PixelBox));
+    const rs::TileLists lists(offsets.data_ptr<int32_t>(), ids.data_ptr<int32_t>(),
+                              reinterpret_cast<const rs::PixelBox*>(boxes.data_ptr<int32_t>()),
+                              reinterpret_cast<const uint64_t*>(reached.data_ptr<int64_t>()), offsets.numel() - 1);
     const rs::BackwardInputs<scalar_t> in{transmittance.data_ptr<scalar_t>(), last.data_ptr<int32_t>(),
                                           grad_rgb.data_ptr<scalar_t>(), grad_depth.data_ptr<scalar_t>(),
                                           grad_alpha.data_ptr<scalar_t>()};
-    rs::composite_backward(packed.data_ptr<scalar_t>(), count, width, height, workers, AtenParallelFor(), binning,
-                           in, buffers.data_ptr<scalar_t>());
+    scalar_t* sums = buffers.data_ptr<scalar_t>();
+    rs::composite_backward(packed.data_ptr<scalar_t>(), count, width, height, workers, AtenParallelFor(), lists, in,
+                           sums);
+    scalar_t *mean = grad_means2d.data_ptr<scalar_t>(), *conic = grad_conics.data_ptr<scalar_t>();
+    scalar_t *rgb = grad_colors.data_ptr<scalar_t>(), *opacity = grad_opacities.data_ptr<scalar_t>();
+    scalar_t* depth = grad_depths.data_ptr<scalar_t>();
+    at::parallel_for(0, count, kSplatsPerTask, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) {
+        scalar_t g[rs::kFields];
+        std::copy(sums + i * rs::kFields, sums + (i + 1) * rs::kFields, g);
+        for (int64_t worker = 1; worker < workers; ++worker)
+          for (int f = 0; f < rs::kFields; ++f) g[f] += sums[(worker * count + i) * rs::kFields + f];
+        mean[2 * i] = g[0], mean[2 * i + 1] = g[1];
+        conic[3 * i] = g[2], conic[3 * i + 1] = g[3], conic[3 * i + 2] = g[4];
+        rgb[3 * i] = g[5], rgb[3 * i + 1] = g[6], rgb[3 * i + 2] = g[7];
+        opacity[i] = g[8];
+        depth[i] = g[9];
+      }
+    });
   });
-  return workers == 1 ? buffers[0] : buffers.sum(0);
+  return {grad_means2d, grad_conics, grad_colors, grad_opacities, grad_depths};
 }
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("project_forward", &project_forward, "EWA projection and SH colour of 3D Gaussians (forward)");
   m.def("project_backward", &project_backward, "EWA projection and SH colour of 3D Gaussians (backward)");
-  m.def("composite_forward", &composite_forward, "Tile compositing of packed splats (forward)");
-  m.def("composite_backward", &composite_backward, "Tile compositing of packed splats (backward)");
+  m.def("composite_forward", &composite_forward, "Tile compositing of splats (forward)");
+  m.def("composite_backward", &composite_backward, "Tile compositing of splats (backward)");
 }

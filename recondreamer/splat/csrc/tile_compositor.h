@@ -12,16 +12,19 @@
 //
 // Binning is exact, not a truncation: a splat is listed in every 16x16 tile that its support
 // box |dx| <= sqrt(2 ln(255 opacity) cov_xx) (same for y), plus a one-pixel margin, touches;
-// outside that box alpha < 1/255, so nothing is lost. One stable radix sort by depth, then
-// binning in that order, leaves every tile's list sorted front to back. Inside a tile a splat
-// only visits the pixels of its support box, skips rows whose pixels are all finished, and skips
-// a group of pixels once their sigmas show that none lies inside the ellipse
-// sigma <= ln(255 opacity) (alpha < 1/255 outside it) or that all of them are finished.
+// outside that box alpha < 1/255, so nothing is lost. One stable radix sort by depth of the
+// splats with a non-empty box, then binning in that order, leaves every tile's list sorted front
+// to back.
 //
-// The pixel loops work on groups of pixels of one tile row at once with GCC/Clang vector
-// extensions (one SIMD register: 4 floats with SSE2, 8 with AVX2), with lane masks instead of
-// branches except for the skip of whole groups. The backward pass walks each tile's list back to
-// front, recovering T by division, and accumulates gradients in one buffer per worker.
+// The pixel loops work on groups of pixels (one SIMD register: 2x4 pixels with AVX, else one
+// row of 4 floats or 2-4 doubles) with GCC/Clang vector extensions and lane masks. For each splat
+// of a tile, the forward pass first lists the groups of its support box that have a lane inside
+// the ellipse sigma <= ln(255 opacity) (alpha < 1/255 outside it) and not yet finished, using
+// sigma alone, and then composites the listed groups in a loop without data-dependent branches,
+// whose iterations (different pixels) the CPU overlaps. It records the listed groups of every
+// (splat, tile) entry as a bit mask. The backward pass walks each tile's list back to front from
+// the last splat any pixel used, visits only the groups in the entry's mask, recovers T by
+// division, and accumulates gradients in one buffer per worker.
 
 #pragma once
 
@@ -95,6 +98,25 @@ inline auto lane_sum(const V& v) {
   return total;
 }
 
+// Lane sums of eight vectors: sums[i] = lane_sum(v[i]). For 8-float AVX vectors, three rounds of
+// horizontal adds instead of eight separate reductions (the backward pass reduces its gradient
+// accumulators once per splat and tile).
+template <typename V, typename T>
+inline void lane_sums(const V (&v)[8], T* sums) {
+#if defined(__AVX__)
+  if constexpr (sizeof(V) == 32 && sizeof(T) == 4) {
+    const __m256 s01 = _mm256_hadd_ps(v[0], v[1]), s23 = _mm256_hadd_ps(v[2], v[3]);
+    const __m256 s45 = _mm256_hadd_ps(v[4], v[5]), s67 = _mm256_hadd_ps(v[6], v[7]);
+    // Lanes 0-3: quarter sums of v[0..3] (low 128 bits) and v[4..7]; lanes 4-7: the other halves.
+    const __m256 s0123 = _mm256_hadd_ps(s01, s23), s4567 = _mm256_hadd_ps(s45, s67);
+    _mm256_storeu_ps(sums, _mm256_add_ps(_mm256_permute2f128_ps(s0123, s4567, 0x20),
+                                         _mm256_permute2f128_ps(s0123, s4567, 0x31)));
+    return;
+  }
+#endif
+  for (int i = 0; i < 8; ++i) sums[i] = lane_sum(v[i]);
+}
+
 // Lane-wise min and max: one instruction on x86 (a ? b : c needs a compare and a blend). With a
 // NaN in `a` they return `b`.
 template <typename V>
@@ -119,6 +141,25 @@ inline V max_lanes(const V& a, const V& b) {
   if constexpr (sizeof(V) == 16 && sizeof(a[0]) == 8) return _mm_max_pd(a, b);
 #endif
   return a > b ? a : b;
+}
+
+// a * b + c with one rounding (an FMA instruction) where the build targets FMA (AVX2 and
+// AVX-512 builds, see cpu_kernel.py), else two. Forward and backward run the same code on the
+// same values, so they still see bit-identical sigmas and alphas.
+template <typename V>
+inline V mul_add(const V& a, const V& b, const V& c) {
+#if defined(__FMA__)
+  if constexpr (sizeof(V) == 32 && sizeof(a[0]) == 4) return _mm256_fmadd_ps(a, b, c);
+  if constexpr (sizeof(V) == 32 && sizeof(a[0]) == 8) return _mm256_fmadd_pd(a, b, c);
+  if constexpr (sizeof(V) == 16 && sizeof(a[0]) == 4) return _mm_fmadd_ps(a, b, c);
+  if constexpr (sizeof(V) == 16 && sizeof(a[0]) == 8) return _mm_fmadd_pd(a, b, c);
+#endif
+  return a * b + c;
+}
+
+template <typename V, typename T, typename = std::enable_if_t<std::is_arithmetic_v<T>>>
+inline V mul_add(const V& a, T b, const V& c) {
+  return mul_add(a, broadcast<V>(b), c);
 }
 
 // True when no lane of the mask is set.
@@ -153,17 +194,51 @@ inline int32_t set_lanes(const Mask& mask) {
   return count;
 }
 
-// sigma = 0.5 (a dx^2 + c dy^2) + b dx dy on one pixel row, evaluated as
-// (0.5 a dx + b dy) dx + 0.5 c dy^2: the row terms once, three operations per group of lanes.
-// Forward and backward both use it, so they see bit-identical sigmas.
+// The pixels of a tile are processed in groups of one SIMD register: kRows rows by kCols
+// columns (2 rows of 4 for 8 lanes; one row otherwise). A splat covers a roughly round patch,
+// which 2 rows of 4 fit with fewer wasted lanes than one row of 8 (measured: 17 % fewer groups
+// reach a splat's support in the benchmark's scene). The per-tile pixel arrays are stored group
+// by group (slot = group * lanes + lane), so that a group is one aligned load.
 template <typename T>
-struct RowSigma {
-  T half_a, b_dy, half_c_dy2;
-  RowSigma(T a, T b, T c, T dy) : half_a(T(0.5) * a), b_dy(b * dy), half_c_dy2(T(0.5) * c * dy * dy) {}
-  template <typename V>
-  V operator()(const V& dx) const {
-    return (half_a * dx + b_dy) * dx + half_c_dy2;
+struct Groups {
+  using V = typename Lanes<T>::V;
+  static constexpr int kLanes = Lanes<T>::kCount;
+  static constexpr int kRows = kLanes >= 8 ? 2 : 1;
+  static constexpr int kCols = kLanes / kRows;
+  static constexpr int kAcross = kTile / kCols;  // groups per band of kRows tile rows
+  static constexpr int kBands = kTile / kRows;
+  static constexpr int kCount = kAcross * kBands;  // groups per tile
+  // Groups per bit of a 64-bit group mask: 1, except 2 for the 128 two-lane groups of SSE2 doubles.
+  static constexpr int kPerBit = kCount > 64 ? kCount / 64 : 1;
+  static_assert(kTile % kCols == 0 && kTile % kRows == 0, "groups must tile a tile");
+  static_assert(kCount <= 64 * kPerBit, "a 64-bit mask must cover the groups of a tile");
+
+  // Slot of the tile-local pixel (x, y) in a per-tile array.
+  static int32_t slot(int32_t x, int32_t y) {
+    return ((y / kRows) * kAcross + x / kCols) * kLanes + (y % kRows) * kCols + x % kCols;
   }
+  // Pixel-centre offsets of the lanes from the group's top-left pixel corner.
+  static V lane_x() {
+    V v;
+    for (int i = 0; i < kLanes; ++i) v[i] = T(i % kCols) + T(0.5);
+    return v;
+  }
+  static V lane_y() {
+    V v;
+    for (int i = 0; i < kLanes; ++i) v[i] = T(i / kCols) + T(0.5);
+    return v;
+  }
+};
+
+// sigma = 0.5 (a dx^2 + c dy^2) + b dx dy on one band of groups (dy fixed per lane), evaluated as
+// (0.5 a dx + b dy) dx + 0.5 c dy^2: the band terms once, two multiply-adds per group. Forward
+// and backward both use it, so they see bit-identical sigmas.
+template <typename V, typename T>
+struct BandSigma {
+  V half_a, b_dy, half_c_dy2;
+  BandSigma(T a, T b, T c, const V& dy)
+      : half_a(broadcast<V>(T(0.5) * a)), b_dy(b * dy), half_c_dy2((T(0.5) * c) * dy * dy) {}
+  V operator()(const V& dx) const { return mul_add(mul_add(half_a, dx, b_dy), dx, half_c_dy2); }
 };
 
 // exp(x) for float lanes to a few ulp, with no library call, so that the forward and backward
@@ -172,51 +247,23 @@ inline Lanes<float>::V exp_lanes(Lanes<float>::V x) {
   using V = Lanes<float>::V;
   x = min_lanes(max_lanes(x, broadcast<V>(-87.0f)), broadcast<V>(88.0f));
   const float shifter = 12582912.0f;  // 1.5 * 2^23: adding and subtracting it rounds to an integer
-  const V n = (x * 1.4426950408889634f + shifter) - shifter;
-  const V r = (x - n * 0.693359375f) - n * -2.12194440e-4f;  // |r| <= ln(2)/2; ln 2 split hi+lo
-  // Taylor series of e^r to degree 7, summed in Estrin's order: a chain of 6 dependent
-  // operations instead of Horner's 14 (the forward pass was waiting on this latency).
+  const V n = mul_add(x, 1.4426950408889634f, broadcast<V>(shifter)) - shifter;
+  const V r = mul_add(n, 2.12194440e-4f, mul_add(n, -0.693359375f, x));  // |r| <= ln(2)/2; ln 2 split hi+lo
+  // Taylor series of e^r to degree 7, summed in Estrin's order: a chain of 4 dependent
+  // operations instead of Horner's 7 (the forward pass was waiting on this latency).
   const V r2 = r * r;
   const V r4 = r2 * r2;
-  const V low = (1.0f + r) + r2 * (0.5f + r * (1.0f / 6.0f));
-  const V high = (1.0f / 24.0f + r * (1.0f / 120.0f)) + r2 * (1.0f / 720.0f + r * (1.0f / 5040.0f));
-  const V p = low + r4 * high;
+  const V low = mul_add(r2, mul_add(r, 1.0f / 6.0f, broadcast<V>(0.5f)), 1.0f + r);
+  const V high = mul_add(r2, mul_add(r, 1.0f / 5040.0f, broadcast<V>(1.0f / 720.0f)),
+                         mul_add(r, 1.0f / 120.0f, broadcast<V>(1.0f / 24.0f)));
+  const V p = mul_add(r4, high, low);
   const Lanes<float>::Mask bits = (__builtin_convertvector(n, Lanes<float>::Mask) + 127) << 23;  // 2^n
-  return p * reinterpret_cast<const V&>(bits);
+  return p * load<V>(&bits);
 }
 
 inline Lanes<double>::V exp_lanes(Lanes<double>::V x) {
   for (int i = 0; i < Lanes<double>::kCount; ++i) x[i] = std::exp(x[i]);
   return x;
-}
-
-// Stable order of the splats by depth: LSD radix sort on order-preserving integer keys.
-template <typename scalar_t>
-std::vector<int32_t> depth_order(const scalar_t* packed, int64_t count) {
-  using key_t = std::conditional_t<sizeof(scalar_t) == 4, uint32_t, uint64_t>;
-  constexpr key_t sign = key_t(1) << (8 * sizeof(key_t) - 1);
-  std::vector<key_t> keys(count), keys_tmp(count);
-  std::vector<int32_t> order(count), order_tmp(count);
-  for (int64_t i = 0; i < count; ++i) {
-    key_t bits;
-    std::memcpy(&bits, &packed[i * kFields + 9], sizeof(bits));
-    keys[i] = (bits & sign) ? ~bits : (bits | sign);
-    order[i] = static_cast<int32_t>(i);
-  }
-  for (int shift = 0; shift < static_cast<int>(8 * sizeof(key_t)); shift += 8) {
-    int64_t histogram[257] = {0};
-    for (int64_t i = 0; i < count; ++i) ++histogram[((keys[i] >> shift) & 0xff) + 1];
-    if (std::any_of(histogram + 1, histogram + 257, [&](int64_t h) { return h == count; })) continue;
-    for (int d = 0; d < 256; ++d) histogram[d + 1] += histogram[d];
-    for (int64_t i = 0; i < count; ++i) {
-      const int64_t slot = histogram[(keys[i] >> shift) & 0xff]++;
-      keys_tmp[slot] = keys[i];
-      order_tmp[slot] = order[i];
-    }
-    keys.swap(keys_tmp);
-    order.swap(order_tmp);
-  }
-  return order;
 }
 
 // Inclusive pixel box of a splat's support, empty (x0 > x1) when it never reaches alpha 1/255.
@@ -258,12 +305,67 @@ std::vector<PixelBox> support_boxes(const scalar_t* packed, int64_t count, int64
   return boxes;
 }
 
+// Indices of the splats with a non-empty support box, stably ordered by depth: LSD radix sort on
+// order-preserving integer keys, 11 bits a pass (3 passes for float depths).
+template <typename scalar_t>
+std::vector<int32_t> depth_order(const scalar_t* packed, const std::vector<PixelBox>& boxes) {
+  using key_t = std::conditional_t<sizeof(scalar_t) == 4, uint32_t, uint64_t>;
+  constexpr key_t sign = key_t(1) << (8 * sizeof(key_t) - 1);
+  constexpr int kDigitBits = 11, kBuckets = 1 << kDigitBits;
+  std::vector<key_t> keys, keys_tmp;
+  std::vector<int32_t> order, order_tmp;
+  keys.reserve(boxes.size());
+  order.reserve(boxes.size());
+  for (int64_t i = 0; i < static_cast<int64_t>(boxes.size()); ++i) {
+    if (boxes[i].empty()) continue;  // off screen, behind the camera or too faint: never drawn
+    key_t bits;
+    std::memcpy(&bits, &packed[i * kFields + 9], sizeof(bits));
+    keys.push_back((bits & sign) ? ~bits : (bits | sign));
+    order.push_back(static_cast<int32_t>(i));
+  }
+  const int64_t count = static_cast<int64_t>(keys.size());
+  keys_tmp.resize(count);
+  order_tmp.resize(count);
+  for (int shift = 0; shift < static_cast<int>(8 * sizeof(key_t)); shift += kDigitBits) {
+    std::vector<int64_t> histogram(kBuckets + 1, 0);
+    for (int64_t i = 0; i < count; ++i) ++histogram[((keys[i] >> shift) & (kBuckets - 1)) + 1];
+    if (std::any_of(histogram.begin() + 1, histogram.end(), [&](int64_t h) { return h == count; })) continue;
+    for (int d = 0; d < kBuckets; ++d) histogram[d + 1] += histogram[d];
+    for (int64_t i = 0; i < count; ++i) {
+      const int64_t slot = histogram[(keys[i] >> shift) & (kBuckets - 1)]++;
+      keys_tmp[slot] = keys[i];
+      order_tmp[slot] = order[i];
+    }
+    keys.swap(keys_tmp);
+    order.swap(order_tmp);
+  }
+  return order;
+}
+
 // Per-tile lists: tile t owns ids[offsets[t] .. offsets[t+1]), splat indices front to back.
-// boxes: support boxes of all splats, kept for the backward pass.
+// boxes: support boxes of all splats. reached: per list entry, the groups of pixels of the tile
+// that the forward pass listed for the splat (bit g / kPerBit for group g, see Groups), so that
+// the backward pass visits only those. All four are kept for the backward pass.
 struct Binning {
   std::vector<int32_t> offsets;
   std::vector<int32_t> ids;
   std::vector<PixelBox> boxes;
+  std::vector<uint64_t> reached;
+};
+
+// Read-only view of a Binning, or of the tensors that hold it between the passes.
+struct TileLists {
+  const int32_t* offsets;  // (tiles + 1)
+  const int32_t* ids;      // (entries)
+  const PixelBox* boxes;   // (M)
+  const uint64_t* reached;  // (entries)
+  int64_t num_tiles;
+  explicit TileLists(const Binning& binning)
+      : offsets(binning.offsets.data()), ids(binning.ids.data()), boxes(binning.boxes.data()),
+        reached(binning.reached.data()), num_tiles(static_cast<int64_t>(binning.offsets.size()) - 1) {}
+  TileLists(const int32_t* offsets_, const int32_t* ids_, const PixelBox* boxes_, const uint64_t* reached_,
+            int64_t num_tiles_)
+      : offsets(offsets_), ids(ids_), boxes(boxes_), reached(reached_), num_tiles(num_tiles_) {}
 };
 
 // Calls visit(tile) for every tile that the box touches.
@@ -277,23 +379,24 @@ inline void for_each_tile_of(const PixelBox& box, int64_t tiles_x, const Visit& 
 // counts its chunk's entries per tile, and then writes them behind those of the chunks in front,
 // so every tile list stays in depth order (stable) whatever the number of workers.
 template <typename scalar_t, typename ParallelFor>
-Binning bin_splats(const scalar_t* packed, int64_t count, int64_t width, int64_t height,
+Binning bin_splats(const scalar_t* packed, int64_t width, int64_t height,
                    const std::vector<PixelBox>& boxes, int64_t workers, const ParallelFor& parallel_for) {
   const int64_t tiles_x = (width + kTile - 1) / kTile, tiles_y = (height + kTile - 1) / kTile;
   const int64_t num_tiles = tiles_x * tiles_y;
-  const std::vector<int32_t> order = depth_order(packed, count);
-  std::vector<PixelBox> sorted_boxes(count);  // boxes in depth order: the passes below read them in sequence
-  parallel_for(0, count, 4096, [&](int64_t begin, int64_t end) {
+  const std::vector<int32_t> order = depth_order(packed, boxes);
+  const int64_t listed = static_cast<int64_t>(order.size());
+  std::vector<PixelBox> sorted_boxes(listed);  // boxes in depth order: the passes below read them in sequence
+  parallel_for(0, listed, 4096, [&](int64_t begin, int64_t end) {
     for (int64_t k = begin; k < end; ++k) sorted_boxes[k] = boxes[order[k]];
   });
-  const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(workers, count / 4096 + 1));
-  const int64_t chunk_size = (count + chunks - 1) / chunks;
+  const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(workers, listed / 4096 + 1));
+  const int64_t chunk_size = (listed + chunks - 1) / chunks;
   std::vector<int32_t> cursors(chunks * num_tiles, 0);  // per chunk and tile: count, then write position
   parallel_for(0, chunks, 1, [&](int64_t begin, int64_t end) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
       int32_t* counts = cursors.data() + chunk * num_tiles;
-      for (int64_t k = chunk * chunk_size; k < std::min(count, (chunk + 1) * chunk_size); ++k)
-        if (!sorted_boxes[k].empty()) for_each_tile_of(sorted_boxes[k], tiles_x, [&](int64_t t) { ++counts[t]; });
+      for (int64_t k = chunk * chunk_size; k < std::min(listed, (chunk + 1) * chunk_size); ++k)
+        for_each_tile_of(sorted_boxes[k], tiles_x, [&](int64_t t) { ++counts[t]; });
     }
   });
   Binning binning;
@@ -311,9 +414,8 @@ Binning bin_splats(const scalar_t* packed, int64_t count, int64_t width, int64_t
   parallel_for(0, chunks, 1, [&](int64_t begin, int64_t end) {
     for (int64_t chunk = begin; chunk < end; ++chunk) {
       int32_t* cursor = cursors.data() + chunk * num_tiles;
-      for (int64_t k = chunk * chunk_size; k < std::min(count, (chunk + 1) * chunk_size); ++k)
-        if (!sorted_boxes[k].empty())
-          for_each_tile_of(sorted_boxes[k], tiles_x, [&](int64_t t) { binning.ids[cursor[t]++] = order[k]; });
+      for (int64_t k = chunk * chunk_size; k < std::min(listed, (chunk + 1) * chunk_size); ++k)
+        for_each_tile_of(sorted_boxes[k], tiles_x, [&](int64_t t) { binning.ids[cursor[t]++] = order[k]; });
     }
   });
   return binning;
@@ -325,7 +427,7 @@ Binning bin_splats(const scalar_t* packed, int64_t count, int64_t width, int64_t
 constexpr int32_t kPrefetchAhead = 2;
 
 template <typename scalar_t>
-inline void prefetch_splat(const scalar_t* packed, const std::vector<PixelBox>& boxes, int32_t id) {
+inline void prefetch_splat(const scalar_t* packed, const PixelBox* boxes, int32_t id) {
   const scalar_t* s = packed + static_cast<int64_t>(id) * kFields;
   __builtin_prefetch(s);
   __builtin_prefetch(s + kFields - 1);  // the record may straddle two cache lines
@@ -335,9 +437,8 @@ inline void prefetch_splat(const scalar_t* packed, const std::vector<PixelBox>& 
 // Runs body(tile, worker) for every tile on `workers` workers that take tiles from a shared
 // counter, longest lists first, so that uneven tiles do not leave a core idle.
 template <typename ParallelFor, typename Body>
-void for_each_tile(const std::vector<int32_t>& offsets, int64_t workers, const ParallelFor& parallel_for,
+void for_each_tile(const int32_t* offsets, int64_t num_tiles, int64_t workers, const ParallelFor& parallel_for,
                    const Body& body) {
-  const int64_t num_tiles = static_cast<int64_t>(offsets.size()) - 1;
   std::vector<int32_t> schedule(num_tiles);
   std::iota(schedule.begin(), schedule.end(), 0);
   std::stable_sort(schedule.begin(), schedule.end(), [&](int32_t p, int32_t q) {
@@ -373,82 +474,96 @@ struct ForwardOutputs {
 };
 
 template <typename scalar_t>
-void forward_tile(const scalar_t* packed, const Binning& binning, const std::vector<PixelBox>& boxes,
-                  int64_t tile, int64_t width, int64_t height, const ForwardOutputs<scalar_t>& out) {
+void forward_tile(const scalar_t* packed, const TileLists& lists, int64_t tile, int64_t width, int64_t height,
+                  const ForwardOutputs<scalar_t>& out, uint64_t* reached) {
   using T = scalar_t;
+  using G = Groups<T>;
   using V = typename Lanes<T>::V;
   using Mask = typename Lanes<T>::Mask;
-  constexpr int kLanes = Lanes<T>::kCount;
+  constexpr int kLanes = G::kLanes;
   const TileRect rect(tile, width, height);
-  // Per-pixel state over the tile, row stride kTile; pixels outside the image stay inactive.
+  // Per-pixel state over the tile, in slot order; pixels outside the image stay inactive.
   alignas(64) T trans[kTilePixels], acc_r[kTilePixels], acc_g[kTilePixels], acc_b[kTilePixels];
   alignas(64) T acc_z[kTilePixels], active[kTilePixels], last[kTilePixels];
-  int32_t active_in_row[kTile] = {0};
+  int32_t active_in_band[G::kBands] = {0};
   for (int p = 0; p < kTilePixels; ++p) {
     trans[p] = 1;
     acc_r[p] = acc_g[p] = acc_b[p] = acc_z[p] = active[p] = 0;
     last[p] = -1;  // list position held as a float: exact, and comparable in lanes
   }
-  for (int32_t y = rect.y0; y <= rect.y1; ++y) {
-    active_in_row[y - rect.y0] = rect.x1 - rect.x0 + 1;
-    for (int32_t x = rect.x0; x <= rect.x1; ++x) active[(y - rect.y0) * kTile + (x - rect.x0)] = 1;
+  for (int32_t y = 0; y <= rect.y1 - rect.y0; ++y) {
+    active_in_band[y / G::kRows] += rect.x1 - rect.x0 + 1;
+    for (int32_t x = 0; x <= rect.x1 - rect.x0; ++x) active[G::slot(x, y)] = 1;
   }
   int32_t remaining = (rect.x1 - rect.x0 + 1) * (rect.y1 - rect.y0 + 1);
-  V lane_centre;  // pixel-centre offset of each lane in a group
-  for (int i = 0; i < kLanes; ++i) lane_centre[i] = T(i) + T(0.5);
+  const V lane_x = G::lane_x(), lane_y = G::lane_y();
 
   const T alpha_max = T(kAlphaMax), alpha_min = T(kAlphaMin), t_min = T(kTransmittanceMin);
-  const int32_t begin = binning.offsets[tile], end = binning.offsets[tile + 1];
+  // Groups of the current splat that some lane of it reaches: first found with sigma alone, then
+  // composited in a second loop whose iterations are independent of each other (different
+  // pixels) and free of data-dependent branches, so the CPU overlaps their long exp chains.
+  alignas(64) T group_sigma[kTilePixels];
+  int32_t group_slot[G::kCount];
+  const int32_t begin = lists.offsets[tile], end = lists.offsets[tile + 1];
   for (int32_t k = begin; k < end && remaining > 0; ++k) {
-    const int32_t id = binning.ids[k];
-    if (k + kPrefetchAhead < end) prefetch_splat(packed, boxes, binning.ids[k + kPrefetchAhead]);
+    const int32_t id = lists.ids[k];
+    if (k + kPrefetchAhead < end) prefetch_splat(packed, lists.boxes, lists.ids[k + kPrefetchAhead]);
     const T* s = packed + static_cast<int64_t>(id) * kFields;
     const T mx = s[0], my = s[1], a = s[2], b = s[3], c = s[4];
-    const T cr = s[5], cg = s[6], cb = s[7], opacity = s[8], z = s[9];
-    const PixelBox& box = boxes[id];
+    const PixelBox& box = lists.boxes[id];
     const T max_sigma = T(box.max_sigma);
-    // Tile-local columns, the first one rounded down to a whole group.
-    const int32_t gx0 = (std::max(box.x0, rect.x0) - rect.x0) & ~(kLanes - 1);
-    const int32_t gx1 = std::min(box.x1, rect.x1) - rect.x0;
-    const int32_t y0 = std::max(box.y0, rect.y0), y1 = std::min(box.y1, rect.y1);
-    const V position = broadcast<V>(T(k - begin));
-    for (int32_t y = y0; y <= y1; ++y) {
-      if (active_in_row[y - rect.y0] == 0) continue;
-      const T dy = T(y) + T(0.5) - my;
-      const RowSigma<T> row_sigma(a, b, c, dy);
-      const int32_t row = (y - rect.y0) * kTile;
-      int32_t stopped = 0;  // pixels that finished on this row
-      for (int32_t gx = gx0; gx <= gx1; gx += kLanes) {
-        const int32_t p = row + gx;
-        const V dx = (T(rect.x0 + gx) + lane_centre) - mx;
-        const V sigma = row_sigma(dx);
-        const V was_active = load<V>(active + p);
-        const Mask reachable = (sigma <= max_sigma) & (was_active != T(0));
-        // Outside the support ellipse (a third of the groups of the box) or finished: no change.
-        if (no_lane(reachable)) continue;
-        const V al = min_lanes(opacity * exp_lanes(-sigma), broadcast<V>(alpha_max));
-        const V t = load<V>(trans + p);
-        Mask use = (sigma >= T(0)) & (al >= alpha_min) & reachable;
-        const V next = t * (T(1) - al);
-        const Mask stop = use & (next <= t_min);
-        use &= ~stop;
-        const V w = use ? al * t : V{};
-        store(acc_r + p, load<V>(acc_r + p) + w * cr);
-        store(acc_g + p, load<V>(acc_g + p) + w * cg);
-        store(acc_b + p, load<V>(acc_b + p) + w * cb);
-        store(acc_z + p, load<V>(acc_z + p) + w * z);
-        store(trans + p, use ? next : t);
-        store(active + p, stop ? V{} : was_active);
-        store(last + p, use ? position : load<V>(last + p));
-        stopped += set_lanes(stop);
+    // Tile-local group columns and bands of the box.
+    const int32_t col0 = (std::max(box.x0, rect.x0) - rect.x0) / G::kCols;
+    const int32_t col1 = (std::min(box.x1, rect.x1) - rect.x0) / G::kCols;
+    const int32_t band0 = (std::max(box.y0, rect.y0) - rect.y0) / G::kRows;
+    const int32_t band1 = (std::min(box.y1, rect.y1) - rect.y0) / G::kRows;
+    int32_t groups = 0;
+    uint64_t reached_groups = 0;
+    for (int32_t band = band0; band <= band1; ++band) {
+      if (active_in_band[band] == 0) continue;
+      const V dy = (T(rect.y0 + band * G::kRows) + lane_y) - my;
+      const BandSigma<V, T> band_sigma(a, b, c, dy);
+      for (int32_t col = col0; col <= col1; ++col) {
+        const int32_t p = (band * G::kAcross + col) * kLanes;
+        const V sigma = band_sigma((T(rect.x0 + col * G::kCols) + lane_x) - mx);
+        const Mask reachable = (sigma <= max_sigma) & (load<V>(active + p) != T(0));
+        store(group_sigma + groups * kLanes, sigma);
+        group_slot[groups] = p;
+        const bool listed = !no_lane(reachable);  // not when outside the support ellipse or finished
+        groups += listed;
+        reached_groups |= uint64_t(listed) << ((band * G::kAcross + col) / G::kPerBit);
       }
-      active_in_row[y - rect.y0] -= stopped;
+    }
+    reached[k] = reached_groups;
+    const T cr = s[5], cg = s[6], cb = s[7], opacity = s[8], z = s[9];
+    const V position = broadcast<V>(T(k - begin));
+    for (int32_t g = 0; g < groups; ++g) {
+      const int32_t p = group_slot[g];
+      const V sigma = load<V>(group_sigma + g * kLanes);
+      const V was_active = load<V>(active + p);
+      const Mask reachable = (sigma <= max_sigma) & (was_active != T(0));
+      const V al = min_lanes(opacity * exp_lanes(-sigma), broadcast<V>(alpha_max));
+      const V t = load<V>(trans + p);
+      Mask use = (sigma >= T(0)) & (al >= alpha_min) & reachable;
+      const V next = t * (T(1) - al);
+      const Mask stop = use & (next <= t_min);
+      use &= ~stop;
+      const V w = use ? al * t : V{};
+      store(acc_r + p, mul_add(w, cr, load<V>(acc_r + p)));
+      store(acc_g + p, mul_add(w, cg, load<V>(acc_g + p)));
+      store(acc_b + p, mul_add(w, cb, load<V>(acc_b + p)));
+      store(acc_z + p, mul_add(w, z, load<V>(acc_z + p)));
+      store(trans + p, use ? next : t);
+      store(active + p, stop ? V{} : was_active);
+      store(last + p, use ? position : load<V>(last + p));
+      const int32_t stopped = set_lanes(stop);
+      active_in_band[p / (kLanes * G::kAcross)] -= stopped;
       remaining -= stopped;
     }
   }
   for (int32_t y = rect.y0; y <= rect.y1; ++y) {
     for (int32_t x = rect.x0; x <= rect.x1; ++x) {
-      const int32_t p = (y - rect.y0) * kTile + (x - rect.x0);
+      const int32_t p = G::slot(x - rect.x0, y - rect.y0);
       const int64_t q = static_cast<int64_t>(y) * width + x;
       out.rgb[3 * q] = acc_r[p];
       out.rgb[3 * q + 1] = acc_g[p];
@@ -472,77 +587,70 @@ struct BackwardInputs {
 };
 
 template <typename scalar_t>
-void backward_tile(const scalar_t* packed, const Binning& binning, const std::vector<PixelBox>& boxes,
-                   int64_t tile, int64_t width, int64_t height, const BackwardInputs<scalar_t>& in,
-                   scalar_t* grad_packed) {
+void backward_tile(const scalar_t* packed, const TileLists& lists, int64_t tile, int64_t width, int64_t height,
+                   const BackwardInputs<scalar_t>& in, scalar_t* grad_packed) {
   using T = scalar_t;
+  using G = Groups<T>;
   using V = typename Lanes<T>::V;
   using Mask = typename Lanes<T>::Mask;
-  constexpr int kLanes = Lanes<T>::kCount;
+  constexpr int kLanes = G::kLanes;
   const TileRect rect(tile, width, height);
-  alignas(64) T trans[kTilePixels], final_trans[kTilePixels], last[kTilePixels];
-  alignas(64) T g_r[kTilePixels], g_g[kTilePixels], g_b[kTilePixels], g_z[kTilePixels], g_a[kTilePixels];
+  // final_trans_g_a: T_final dL/dalpha_out; d(alpha_out)/d(alpha_i) = T_final / (1 - alpha_i).
+  alignas(64) T trans[kTilePixels], final_trans_g_a[kTilePixels], last[kTilePixels];
+  alignas(64) T g_r[kTilePixels], g_g[kTilePixels], g_b[kTilePixels], g_z[kTilePixels];
   alignas(64) T behind_r[kTilePixels], behind_g[kTilePixels], behind_b[kTilePixels], behind_z[kTilePixels];
-  int32_t row_last[kTile];  // largest `last` in each tile row
   for (int p = 0; p < kTilePixels; ++p) {
-    trans[p] = final_trans[p] = 1;
-    g_r[p] = g_g[p] = g_b[p] = g_z[p] = g_a[p] = 0;
+    trans[p] = 1;
+    final_trans_g_a[p] = g_r[p] = g_g[p] = g_b[p] = g_z[p] = 0;
     behind_r[p] = behind_g[p] = behind_b[p] = behind_z[p] = 0;
     last[p] = -1;
   }
   int32_t max_last = -1;
   for (int32_t y = rect.y0; y <= rect.y1; ++y) {
-    row_last[y - rect.y0] = -1;
     for (int32_t x = rect.x0; x <= rect.x1; ++x) {
-      const int32_t p = (y - rect.y0) * kTile + (x - rect.x0);
+      const int32_t p = G::slot(x - rect.x0, y - rect.y0);
       const int64_t q = static_cast<int64_t>(y) * width + x;
-      trans[p] = final_trans[p] = in.transmittance[q];
+      trans[p] = in.transmittance[q];
+      final_trans_g_a[p] = in.transmittance[q] * in.grad_alpha[q];
       last[p] = T(in.last[q]);
-      row_last[y - rect.y0] = std::max(row_last[y - rect.y0], in.last[q]);
+      max_last = std::max(max_last, in.last[q]);
       g_r[p] = in.grad_rgb[3 * q];
       g_g[p] = in.grad_rgb[3 * q + 1];
       g_b[p] = in.grad_rgb[3 * q + 2];
       g_z[p] = in.grad_depth[q];
-      g_a[p] = in.grad_alpha[q];
     }
-    max_last = std::max(max_last, row_last[y - rect.y0]);
   }
-  V lane_centre;
-  for (int i = 0; i < kLanes; ++i) lane_centre[i] = T(i) + T(0.5);
+  const V lane_x = G::lane_x(), lane_y = G::lane_y();
 
   const T alpha_max = T(kAlphaMax), alpha_min = T(kAlphaMin);
-  const int32_t begin = binning.offsets[tile];
+  const int32_t begin = lists.offsets[tile];
   for (int32_t position = max_last; position >= 0; --position) {
-    const int32_t id = binning.ids[begin + position];
+    const int32_t id = lists.ids[begin + position];
     if (position >= kPrefetchAhead) {
-      const int32_t ahead = binning.ids[begin + position - kPrefetchAhead];
-      prefetch_splat(packed, boxes, ahead);
+      const int32_t ahead = lists.ids[begin + position - kPrefetchAhead];
+      prefetch_splat(packed, lists.boxes, ahead);
       __builtin_prefetch(grad_packed + static_cast<int64_t>(ahead) * kFields, 1);
     }
     const T* s = packed + static_cast<int64_t>(id) * kFields;
     const T mx = s[0], my = s[1], a = s[2], b = s[3], c = s[4];
     const T cr = s[5], cg = s[6], cb = s[7], opacity = s[8], z = s[9];
-    const PixelBox& box = boxes[id];
-    const T max_sigma = T(box.max_sigma);
-    const int32_t gx0 = (std::max(box.x0, rect.x0) - rect.x0) & ~(kLanes - 1);
-    const int32_t gx1 = std::min(box.x1, rect.x1) - rect.x0;
-    const int32_t y0 = std::max(box.y0, rect.y0), y1 = std::min(box.y1, rect.y1);
+    const T max_sigma = T(lists.boxes[id].max_sigma);
     const V position_lanes = broadcast<V>(T(position));
-    V d_mx{}, d_my{}, d_a{}, d_b{}, d_c{}, d_r{}, d_g{}, d_bl{}, d_op{}, d_z{};
-    for (int32_t y = y0; y <= y1; ++y) {
-      if (row_last[y - rect.y0] < position) continue;
-      const T dy = T(y) + T(0.5) - my;
-      const RowSigma<T> row_sigma(a, b, c, dy);
-      const int32_t row = (y - rect.y0) * kTile;
-      // dy is constant on the row: the shape gradients need only sum(g), sum(g dx), sum(g dx^2)
-      // of g = dL/dsigma over the row, combined with dy once per row below.
-      V sum_g{}, sum_g_dx{}, sum_g_dx2{};
-      for (int32_t gx = gx0; gx <= gx1; gx += kLanes) {
-        const int32_t p = row + gx;
-        const V dx = (T(rect.x0 + gx) + lane_centre) - mx;
-        const V sigma = row_sigma(dx);
+    // Shape gradients from the moments of g = dL/dsigma: sum(g dx), sum(g dx^2), ... below.
+    V d_r{}, d_g{}, d_bl{}, d_op{}, d_z{};
+    V sum_g_dx{}, sum_g_dy{}, sum_g_dx2{}, sum_g_dxdy{}, sum_g_dy2{};
+    // Only the groups that the forward pass listed for this splat: the others have no lane that
+    // it composited. The loop has no data-dependent branch but its exit, so the CPU overlaps
+    // the groups' long dependency chains (different pixels, independent).
+    for (uint64_t bits = lists.reached[begin + position]; bits != 0; bits &= bits - 1) {
+      const int32_t first = __builtin_ctzll(bits) * G::kPerBit;
+      for (int32_t index = first; index < first + G::kPerBit; ++index) {
+        const int32_t p = index * kLanes;
+        // dx, dy and sigma exactly as in the forward pass.
+        const V dy = (T(rect.y0 + (index / G::kAcross) * G::kRows) + lane_y) - my;
+        const V dx = (T(rect.x0 + (index % G::kAcross) * G::kCols) + lane_x) - mx;
+        const V sigma = BandSigma<V, T>(a, b, c, dy)(dx);
         const Mask reachable = (sigma <= max_sigma) & (position_lanes <= load<V>(last + p));
-        if (no_lane(reachable)) continue;  // outside the support ellipse, or behind the pixels' last splat
         const V gauss = exp_lanes(-sigma);
         const V raw = opacity * gauss;
         const V al = min_lanes(raw, broadcast<V>(alpha_max));
@@ -553,47 +661,47 @@ void backward_tile(const scalar_t* packed, const Binning& binning, const std::ve
         const V t_before = t_after * inv_one_minus;  // transmittance in front of this splat
         const V w = al_used * t_before;
         const V gr = load<V>(g_r + p), gg = load<V>(g_g + p), gb = load<V>(g_b + p), gz = load<V>(g_z + p);
-        d_r += w * gr;
-        d_g += w * gg;
-        d_bl += w * gb;
-        d_z += w * gz;
+        d_r = mul_add(w, gr, d_r);
+        d_g = mul_add(w, gg, d_g);
+        d_bl = mul_add(w, gb, d_bl);
+        d_z = mul_add(w, gz, d_z);
         // d(outputs)/d(alpha): colour and depth through the splats behind, alpha through T_final.
         // Behind-colour update: behind' = alpha c + (1 - alpha) behind = behind + alpha (c - behind).
         const V br = load<V>(behind_r + p), bg = load<V>(behind_g + p);
         const V bb = load<V>(behind_b + p), bz = load<V>(behind_z + p);
         const V diff_r = cr - br, diff_g = cg - bg, diff_b = cb - bb, diff_z = z - bz;
-        const V d_alpha = t_before * (diff_r * gr + diff_g * gg + diff_b * gb + diff_z * gz) +
-                          load<V>(final_trans + p) * inv_one_minus * load<V>(g_a + p);
-        store(behind_r + p, br + al_used * diff_r);
-        store(behind_g + p, bg + al_used * diff_g);
-        store(behind_b + p, bb + al_used * diff_b);
-        store(behind_z + p, bz + al_used * diff_z);
+        const V behind_dot_g = mul_add(diff_z, gz, mul_add(diff_b, gb, mul_add(diff_g, gg, diff_r * gr)));
+        const V d_alpha = mul_add(t_before, behind_dot_g, load<V>(final_trans_g_a + p) * inv_one_minus);
+        store(behind_r + p, mul_add(al_used, diff_r, br));
+        store(behind_g + p, mul_add(al_used, diff_g, bg));
+        store(behind_b + p, mul_add(al_used, diff_b, bb));
+        store(behind_z + p, mul_add(al_used, diff_z, bz));
         store(trans + p, used ? t_before : t_after);
         // The clamp at alpha_max cuts the gradient to opacity and sigma (as torch.clamp does).
         const V through = (used & (raw <= alpha_max)) ? d_alpha : V{};
         const V d_sigma = -al * through;
-        d_op += gauss * through;
-        const V g_dx = d_sigma * dx;
-        sum_g += d_sigma;
+        d_op = mul_add(gauss, through, d_op);
+        const V g_dx = d_sigma * dx, g_dy = d_sigma * dy;
         sum_g_dx += g_dx;
-        sum_g_dx2 += g_dx * dx;
+        sum_g_dy += g_dy;
+        sum_g_dx2 = mul_add(g_dx, dx, sum_g_dx2);
+        sum_g_dxdy = mul_add(g_dx, dy, sum_g_dxdy);
+        sum_g_dy2 = mul_add(g_dy, dy, sum_g_dy2);
       }
-      // sigma = 0.5 a dx^2 + b dx dy + 0.5 c dy^2 with dx = px - mean_x, dy = py - mean_y.
-      d_a += T(0.5) * sum_g_dx2;
-      d_b += dy * sum_g_dx;
-      d_c += (T(0.5) * dy * dy) * sum_g;
-      d_mx -= a * sum_g_dx + (b * dy) * sum_g;
-      d_my -= b * sum_g_dx + (c * dy) * sum_g;
     }
+    // sigma = 0.5 a dx^2 + b dx dy + 0.5 c dy^2 with dx = px - mean_x, dy = py - mean_y.
+    const V accumulators[8] = {sum_g_dx, sum_g_dy, sum_g_dx2, sum_g_dxdy, sum_g_dy2, d_r, d_g, d_bl};
+    T sums[8];
+    lane_sums(accumulators, sums);
     T* g = grad_packed + static_cast<int64_t>(id) * kFields;
-    g[0] += lane_sum(d_mx);
-    g[1] += lane_sum(d_my);
-    g[2] += lane_sum(d_a);
-    g[3] += lane_sum(d_b);
-    g[4] += lane_sum(d_c);
-    g[5] += lane_sum(d_r);
-    g[6] += lane_sum(d_g);
-    g[7] += lane_sum(d_bl);
+    g[0] -= a * sums[0] + b * sums[1];
+    g[1] -= b * sums[0] + c * sums[1];
+    g[2] += T(0.5) * sums[2];
+    g[3] += sums[3];
+    g[4] += T(0.5) * sums[4];
+    g[5] += sums[5];
+    g[6] += sums[6];
+    g[7] += sums[7];
     g[8] += lane_sum(d_op);
     g[9] += lane_sum(d_z);
   }
@@ -604,10 +712,13 @@ template <typename scalar_t, typename ParallelFor>
 Binning composite_forward(const scalar_t* packed, int64_t count, int64_t width, int64_t height, int64_t workers,
                           const ParallelFor& parallel_for, const ForwardOutputs<scalar_t>& out) {
   std::vector<PixelBox> boxes = support_boxes(packed, count, width, height, parallel_for);
-  Binning binning = bin_splats(packed, count, width, height, boxes, workers, parallel_for);
+  Binning binning = bin_splats(packed, width, height, boxes, workers, parallel_for);
   binning.boxes = std::move(boxes);
-  for_each_tile(binning.offsets, workers, parallel_for, [&](int64_t tile, int64_t) {
-    forward_tile(packed, binning, binning.boxes, tile, width, height, out);
+  binning.reached.assign(binning.ids.size(), 0);
+  const TileLists lists(binning);
+  uint64_t* reached = binning.reached.data();
+  for_each_tile(lists.offsets, lists.num_tiles, workers, parallel_for, [&](int64_t tile, int64_t) {
+    forward_tile(packed, lists, tile, width, height, out, reached);
   });
   return binning;
 }
@@ -615,10 +726,10 @@ Binning composite_forward(const scalar_t* packed, int64_t count, int64_t width, 
 // Backward pass: grad_buffers holds `workers` zeroed (M,10) buffers, to be summed by the caller.
 template <typename scalar_t, typename ParallelFor>
 void composite_backward(const scalar_t* packed, int64_t count, int64_t width, int64_t height, int64_t workers,
-                        const ParallelFor& parallel_for, const Binning& binning,
+                        const ParallelFor& parallel_for, const TileLists& lists,
                         const BackwardInputs<scalar_t>& in, scalar_t* grad_buffers) {
-  for_each_tile(binning.offsets, workers, parallel_for, [&](int64_t tile, int64_t worker) {
-    backward_tile(packed, binning, binning.boxes, tile, width, height, in, grad_buffers + worker * count * kFields);
+  for_each_tile(lists.offsets, lists.num_tiles, workers, parallel_for, [&](int64_t tile, int64_t worker) {
+    backward_tile(packed, lists, tile, width, height, in, grad_buffers + worker * count * kFields);
   });
 }
 
