@@ -14,7 +14,8 @@ trajectory), restore the clip and print:
 - restore time of a 40-frame clip, wall-clock and process CPU seconds (measured on the first
   clip, scaled to 40 frames); with one thread the CPU seconds are the wall time on an idle core,
   the honest figure when other jobs share the machine;
-- the fine-tuning job's CPU ms per training step and CPU minutes, as recorded in the checkpoint.
+- the fine-tuning job's CPU ms per training step and CPU minutes, as recorded in the checkpoint;
+- the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``.
 
 Pairs whose scene was in a restorer's training set are skipped for that restorer (the checkpoint
 records its training scenes). Example::
@@ -92,6 +93,7 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
         by_kind = {k: [rec for rec in records if rec["kind"] == k] for k in ("orig", "novel")}
         rows.append({
             "arch": arch or restorer.arch,
+            "space": restorer.diffusion_config.target_space,
             "steps": steps or restorer.restore_config.sample_steps,
             "strength": strength or restorer.restore_config.strength,
             "residual": restorer.restore_config.residual_decoding if residual is None else residual,
@@ -141,7 +143,7 @@ def main() -> None:
     else:
         rows = [row for job in jobs for row in evaluate_restorer(*job)]
     header = (
-        f"{'backbone':10s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
+        f"{'backbone':10s} {'space':>8s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
         f"{'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick rest':>10s} {'s / 40 fr':>9s} {'cpu s / 40':>10s} "
         f"{'train CPU ms/step':>17s} {'train CPU min':>13s}"
     )
@@ -150,7 +152,7 @@ def main() -> None:
     print("-" * len(header))
     for row in sorted(rows, key=lambda r: (r["residual"], r["steps"], -r["strength"])):
         print(
-            f"{row['arch']:10s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
+            f"{row['arch']:10s} {row['space']:>8s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
             f"{row['psnr_restored']:9.2f} {row['gain']:7.2f} {row['gain_orig']:6.2f} {row['gain_novel']:6.2f} "
             f"{row['flicker_degraded']:9.2f} {row['flicker_restored']:10.2f} {row['seconds_per_40']:9.1f} "
             f"{row['cpu_seconds_per_40']:10.1f} {row['train_ms']:17.0f} {row['train_minutes']:13.1f}"

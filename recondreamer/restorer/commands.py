@@ -50,11 +50,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files")
     p.add_argument("--out", required=True, help="restorer checkpoint to write")
     p.add_argument("--mask-probability", type=float, default=None, help="dd2_mask: probability that a frame is masked (default from MaskConfig)")
-    p.add_argument("--sample-steps", type=int, default=None, help="default DDIM steps stored for restoring (default from RestoreConfig)")
+    p.add_argument("--sample-steps", type=int, default=None, help="default DDIM steps stored for restoring (default 1)")
     p.add_argument("--strength", type=float, default=None, help="default restore strength stored in the checkpoint (default from RestoreConfig)")
     p.add_argument(
         "--residual-decoding", choices=["on", "off"], default=None,
-        help="store whether restoring decodes only the change and adds it to the input (default from RestoreConfig)",
+        help="store whether restoring decodes only the change and adds it to the input (default on)",
+    )
+    p.add_argument(
+        "--target-space", choices=["residual", "clean"], default="residual",
+        help="what the restorer diffuses: residual = (clean - degraded) latents, so a zero output is the identity "
+        "(default); clean = clean latents, as the world model",
     )
     _add_train_options(p)
     _add_threads_option(p)
@@ -101,6 +106,15 @@ def _add_train_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--window", type=int, default=None, help="frames per clip (default from TrainConfig)")
     p.add_argument("--learning-rate", type=float, default=None, help="AdamW learning rate (default from TrainConfig)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument(
+        "--crop", type=int, nargs=2, default=None, metavar=("H", "W"),
+        help="latent crop (h w) of training clips; 0 0 = whole latents (default from TrainConfig)",
+    )
+    p.add_argument(
+        "--timestep-power", type=float, default=None,
+        help="training timesteps drawn with density ~ t^(power-1): 1 = uniform, > 1 favours the noisy steps a "
+        "few-step sampler visits (default 1 for world models, 3 for restorers)",
+    )
 
 
 def _add_sampling_options(p: argparse.ArgumentParser) -> None:
@@ -114,7 +128,8 @@ def _train_config(args: argparse.Namespace, base=None):
 
     overrides = {
         "steps": args.steps, "batch_size": args.batch_size, "window": args.window,
-        "learning_rate": args.learning_rate, "seed": args.seed,
+        "learning_rate": args.learning_rate, "seed": args.seed, "timestep_power": args.timestep_power,
+        "crop": None if args.crop is None else tuple(args.crop),
     }
     return dataclasses.replace(base or TrainConfig(), **{k: v for k, v in overrides.items() if v is not None})
 
@@ -174,7 +189,13 @@ def run_make_pairs(args: argparse.Namespace) -> int:
 
 def run_train_restorer(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
-    from recondreamer.restorer.config import MaskConfig, RestoreConfig
+    from recondreamer.restorer.config import (
+        RESTORER_RESIDUAL_DECODING,
+        RESTORER_SAMPLE_STEPS,
+        RESTORER_TIMESTEP_POWER,
+        MaskConfig,
+        RestoreConfig,
+    )
     from recondreamer.restorer.data import find_pairs_files, load_pair_sequences
     from recondreamer.restorer.inference import load_world_model
     from recondreamer.restorer.training import train_restorer
@@ -186,14 +207,17 @@ def run_train_restorer(args: argparse.Namespace) -> int:
         masks = MaskConfig() if args.mask_probability is None else dataclasses.replace(MaskConfig(), probability=args.mask_probability)
     files = find_pairs_files(args.pairs)
     sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=masks is not None)
-    restore = RestoreConfig()
+    restore = RestoreConfig(sample_steps=RESTORER_SAMPLE_STEPS, residual_decoding=RESTORER_RESIDUAL_DECODING)
     overrides = {"sample_steps": args.sample_steps, "strength": args.strength}
     if args.residual_decoding is not None:
         overrides["residual_decoding"] = args.residual_decoding == "on"
     restore = dataclasses.replace(restore, **{k: v for k, v in overrides.items() if v is not None})
     if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1:
         raise RecondreamerError(f"--strength must be in (0, 1] and --sample-steps >= 1, got {restore.strength} and {restore.sample_steps}")
-    stats = train_restorer(world, args.arch, sequences, _train_config(args, world.train_config), masks, restore, args.out, args.world_model)
+    train = _train_config(args, world.train_config)
+    if args.timestep_power is None:
+        train = dataclasses.replace(train, timestep_power=RESTORER_TIMESTEP_POWER)
+    stats = train_restorer(world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space)
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 

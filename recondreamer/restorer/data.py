@@ -9,6 +9,7 @@ degraded renders of several training stages. Clips are short windows of a sequen
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import RecondreamerError
+from recondreamer.io import atomic_path
 from recondreamer.restorer.autoencoder import Autoencoder, encode_frames
 
 LOG = logging.getLogger(__name__)
@@ -172,14 +174,41 @@ def find_pairs_files(dirs: list[str | os.PathLike]) -> list[Path]:
     return files
 
 
+def autoencoder_digest(autoencoder: Autoencoder) -> str:
+    """A short hash of the autoencoder's weights and latent statistics: names its latent caches."""
+    digest = hashlib.sha1()
+    for name, tensor in sorted(autoencoder.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()[:12]
+
+
+def pair_latents(path: Path, content: dict, autoencoder: Autoencoder) -> tuple[torch.Tensor, torch.Tensor]:
+    """Latents of a pairs file's ground truth (T,c,h,w) and degraded renders (K,T,c,h,w).
+
+    Encoding costs about 30 CPU ms per frame, minutes for a set of pairs, and every restorer
+    trained on the same pairs and autoencoder needs the same latents: they are cached next to
+    the pairs file as ``<stem>.latents-<autoencoder digest>.pt`` (written atomically).
+    """
+    cache = path.with_name(f"{path.stem}.latents-{autoencoder_digest(autoencoder)}.pt")
+    if cache.is_file():
+        cached = torch.load(cache, map_location="cpu", weights_only=True)
+        if cached["gt"].shape[0] == content["gt"].shape[0] and cached["degraded"].shape[:2] == content["degraded"].shape[:2]:
+            return cached["gt"], cached["degraded"]
+    gt_latents = encode_frames(autoencoder, content["gt"])
+    degraded_latents = torch.stack([encode_frames(autoencoder, stage) for stage in content["degraded"]])
+    with atomic_path(cache) as tmp:
+        torch.save({"gt": gt_latents, "degraded": degraded_latents}, tmp)
+    return gt_latents, degraded_latents
+
+
 def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_structure: bool, keep_frames: bool) -> list[Sequence]:
     """Restoration pairs as sequences; ``keep_frames`` keeps degraded pixels for masking."""
     sequences = []
     for path in files:
         content = load_pairs_file(path)
-        gt_latents = encode_frames(autoencoder, content["gt"])
         degraded = content["degraded"]  # (K,T,H,W,3)
-        degraded_latents = torch.stack([encode_frames(autoencoder, stage) for stage in degraded])
+        gt_latents, degraded_latents = pair_latents(path, content, autoencoder)
         sequences.append(
             Sequence(
                 name=path.stem,

@@ -24,6 +24,13 @@ alpha_bar ~ 0.005, so recovering x0 from an eps prediction divides its error by 
 DDIM step. With v (or x0) prediction the first step's x0 estimate is the network's own output,
 the conditional mean of the clean latent given the conditions (for a restorer: the degraded
 video), with no amplification.
+
+Target space (``DiffusionConfig.target_space``). World models diffuse clean latents. A restorer
+can instead diffuse the *residual* ``r = (clean - degraded) / residual_scale`` and return
+``degraded + residual_scale * r``: its output is the degraded latent plus a correction, so a
+network that outputs r = 0 (or has not learned anything yet) returns its input unchanged instead
+of an unrelated sample, and the model only has to learn what the render got wrong (as in
+ResShift-style restoration diffusion, which diffuses the residual between the two images).
 """
 
 from __future__ import annotations
@@ -36,6 +43,7 @@ import torch
 from recondreamer.restorer.config import DiffusionConfig
 
 PREDICTIONS = ("epsilon", "v", "x0")
+TARGET_SPACES = ("clean", "residual")
 
 
 class NoiseSchedule:
@@ -46,6 +54,10 @@ class NoiseSchedule:
         self.config = config
         if config.prediction not in PREDICTIONS:
             raise ValueError(f"unknown prediction target {config.prediction!r} (expected one of {', '.join(PREDICTIONS)})")
+        if config.target_space not in TARGET_SPACES:
+            raise ValueError(f"unknown target space {config.target_space!r} (expected one of {', '.join(TARGET_SPACES)})")
+        if not config.residual_scale > 0.0:
+            raise ValueError(f"residual scale must be positive, got {config.residual_scale}")
         n = config.train_timesteps
         if config.schedule == "linear":
             betas = torch.linspace(config.beta_start**0.5, config.beta_end**0.5, n, dtype=torch.float64) ** 2
@@ -65,6 +77,27 @@ class NoiseSchedule:
     @property
     def prediction(self) -> str:
         return self.config.prediction
+
+    def to_diffusion_space(self, clean: torch.Tensor, base: torch.Tensor | None) -> torch.Tensor:
+        """The latent the diffusion generates for a clean latent: itself, or the scaled residual
+        to ``base`` (the degraded latent the restorer is conditioned on), same shape."""
+        if self.config.target_space == "clean":
+            return clean
+        return (clean - base) / self.config.residual_scale
+
+    def from_diffusion_space(self, sample: torch.Tensor, base: torch.Tensor | None) -> torch.Tensor:
+        """Inverse of ``to_diffusion_space``: a sample of the diffusion back to a clean latent."""
+        if self.config.target_space == "clean":
+            return sample
+        return base + self.config.residual_scale * sample
+
+    def sample_timesteps(self, batch: int, power: float = 1.0, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Random training steps (B,) with density proportional to t^(power - 1) on [0, N):
+        uniform for power 1; power 3 puts 70% of the steps above 2N/3."""
+        if not power > 0.0:
+            raise ValueError(f"timestep power must be positive, got {power}")
+        u = torch.rand(batch, generator=generator, dtype=torch.float64)
+        return (u ** (1.0 / power) * self.num_timesteps).long().clamp(max=self.num_timesteps - 1)
 
     def _levels(self, timesteps: torch.Tensor, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(a, s) of each batch element, shaped to broadcast against ``like`` (B,...)."""
@@ -110,12 +143,17 @@ class NoiseSchedule:
 def diffusion_loss(
     model_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     schedule: NoiseSchedule,
-    x0: torch.Tensor,  # (B,...)
+    x0: torch.Tensor,  # (B,...) in the schedule's target space
     generator: torch.Generator | None = None,
+    timestep_power: float = 1.0,
 ) -> torch.Tensor:
-    """Mean squared error between the network's output and its target at random steps."""
+    """Mean squared error between the network's output and its target at random steps
+    (density of the steps proportional to t^(timestep_power - 1))."""
     b = x0.shape[0]
-    timesteps = torch.randint(0, schedule.num_timesteps, (b,), generator=generator)
+    if timestep_power == 1.0:  # the integer sampler of earlier checkpoints, so their runs reproduce
+        timesteps = torch.randint(0, schedule.num_timesteps, (b,), generator=generator)
+    else:
+        timesteps = schedule.sample_timesteps(b, timestep_power, generator)
     noise = torch.randn(x0.shape, generator=generator)
     noisy = schedule.add_noise(x0, noise, timesteps)
     return torch.mean((model_fn(noisy, timesteps) - schedule.training_target(x0, noise, timesteps)) ** 2)

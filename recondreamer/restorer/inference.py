@@ -124,10 +124,14 @@ def _sample_clip(
         def model_fn(x: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
             return unet(x, timesteps, reference, degraded=degraded, structure_features=features)
 
-        return ddim_sample(
+        # A residual restorer samples the correction to the degraded clip; its SDEdit start
+        # (strength < 1) is then the zero correction, i.e. the degraded clip itself.
+        start_latent = None if degraded is None else model.schedule.to_diffusion_space(degraded, degraded)
+        sample = ddim_sample(
             model_fn, model.schedule, noise[start:end][None], num_steps, eta=0.0,
-            start_latent=degraded, strength=strength,
-        )[0]
+            start_latent=start_latent, strength=strength,
+        )
+        return model.schedule.from_diffusion_space(sample, degraded)[0]
 
     return blend_windows(num_frames, window, overlap, sample_window)
 

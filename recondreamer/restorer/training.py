@@ -8,6 +8,7 @@ Progress (step, loss, ms/step, ETA) is logged every ``log_every`` steps.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -299,13 +300,24 @@ def sample_batch(
     }
 
 
-def unet_loss(unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator) -> torch.Tensor:
-    """The diffusion loss (MSE to the schedule's prediction target at a random step per clip) of one batch."""
+def unet_loss(
+    unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0
+) -> torch.Tensor:
+    """The diffusion loss (MSE to the schedule's prediction target at a random step per clip) of
+    one batch, in the schedule's target space (residual restorers: relative to the degraded clip)."""
 
     def model_fn(noisy: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
         return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])
 
-    return diffusion_loss(model_fn, schedule, batch["target"], generator)
+    x0 = schedule.to_diffusion_space(batch["target"], batch["degraded"])
+    return diffusion_loss(model_fn, schedule, x0, generator, timestep_power)
+
+
+def residual_scale(sequences: list[Sequence]) -> float:
+    """Standard deviation of (clean - degraded) latents over every stage of every pair sequence."""
+    squares = sum(float(((seq.degraded - seq.target[None]) ** 2).sum()) for seq in sequences)
+    count = sum(seq.degraded.numel() for seq in sequences)
+    return math.sqrt(squares / count)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -337,7 +349,7 @@ def pretrain_world_model(
 
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
         batch = sample_batch(sequences, rng, train, unet_config.downsample_factor, unet_config.uses_structure, False)
-        return unet_loss(unet, schedule, batch, generator)
+        return unet_loss(unet, schedule, batch, generator, train.timestep_power)
 
     stats = run_training_loop(
         f"pretrain {unet_config.arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
@@ -357,23 +369,34 @@ def train_restorer(
     restore: RestoreConfig,
     out: str | os.PathLike,
     world_model_path: str,
+    target_space: str = "residual",
 ) -> dict:
-    """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition."""
+    """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition.
+
+    ``target_space`` "residual" diffuses (clean - degraded) / scale with the scale measured on
+    the pairs (``diffusion.py``); "clean" diffuses clean latents as the world model does.
+    """
     torch.manual_seed(train.seed)
     unet = restorer_unet_from_world_model(world, arch)
+    scale = residual_scale(sequences) if target_space == "residual" else 1.0
+    diffusion_config = dataclasses.replace(world.diffusion_config, target_space=target_space, residual_scale=scale)
+    schedule = NoiseSchedule(diffusion_config)
     model = GenerativeModel(
-        kind="restorer", arch=arch, unet=unet, autoencoder=world.autoencoder, schedule=world.schedule,
-        unet_config=unet.config, diffusion_config=world.diffusion_config, train_config=train,
+        kind="restorer", arch=arch, unet=unet, autoencoder=world.autoencoder, schedule=schedule,
+        unet_config=unet.config, diffusion_config=diffusion_config, train_config=train,
         structure_channels=world.structure_channels, frame_size=world.frame_size, mask_config=masks, restore_config=restore,
     )
     config = model_config_dict(model)
-    LOG.info("restorer %s: %d parameters, %d pair sequences, masks %s", arch, count_parameters(unet), len(sequences), masks)
+    LOG.info(
+        "restorer %s: %d parameters, %d pair sequences, target space %s (residual scale %.3f), masks %s",
+        arch, count_parameters(unet), len(sequences), target_space, scale, masks,
+    )
 
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
         batch = sample_batch(
             sequences, rng, train, unet.config.downsample_factor, unet.config.uses_structure, True, masks, world.autoencoder
         )
-        return unet_loss(unet, world.schedule, batch, generator)
+        return unet_loss(unet, schedule, batch, generator, train.timestep_power)
 
     stats = run_training_loop(
         f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
