@@ -173,3 +173,13 @@ def test_slurm_profile_gives_gpu_rules_a_gpu_and_memory_growing_with_attempts(tm
     by_rule = {rule: resources for rule, resources in jobs}
     assert "gpu=1" in by_rule["train_baseline"] and "mem_mb=32000" in by_rule["train_baseline"]
     assert "gpu=1" not in by_rule["synth_corpus_scene"] and "mem_mb=8000" in by_rule["synth_corpus_scene"]
+
+
+def test_restorer_steps_per_backbone_override_the_common_steps(tmp_path):
+    root = workflow_copy(tmp_path)
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["restorer"].update(steps=20, backbone_steps={"svd": 35})
+    (root / "steps.yaml").write_text(yaml.safe_dump(config))
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "steps.yaml", "--until", "train_restorer").stdout
+    steps = dict(re.findall(r"train-restorer --arch (\w+) .*?--steps (\d+)", shell))
+    assert steps == {"sd": "20", "svd": "35", "dd2": "20", "dd2_mask": "20"}

@@ -47,9 +47,10 @@ rule train_restorer:
     output:
         results("models", "restorer_{restorer}.pt"),
     params:
+        steps=lambda wildcards: option("--steps", config["restorer"]["backbone_steps"].get(wildcards.restorer) or config["restorer"]["steps"]),
         options=" ".join(
             option(flag, config["restorer"][key])
-            for flag, key in (("--steps", "steps"), ("--batch-size", "batch_size"), ("--window", "window"), ("--seed", "seed"))
+            for flag, key in (("--batch-size", "batch_size"), ("--window", "window"), ("--seed", "seed"))
         ),
         mask=lambda wildcards: option("--mask-probability", config["restorer"]["mask_probability"]) if wildcards.restorer == "dd2_mask" else "",
     threads: config["threads"]["restorer"]
@@ -59,4 +60,4 @@ rule train_restorer:
         benchmark_file("train_restorer", "{restorer}")
     shell:
         "recondreamer train-restorer --arch {wildcards.restorer} --world-model {input.world_model} "
-        "--pairs {input.pairs} --out {output} {params.options} {params.mask} --threads {threads} > {log} 2>&1"
+        "--pairs {input.pairs} --out {output} {params.steps} {params.options} {params.mask} --threads {threads} > {log} 2>&1"
