@@ -183,14 +183,15 @@ def autoencoder_digest(autoencoder: Autoencoder) -> str:
     return digest.hexdigest()[:12]
 
 
-def pair_latents(path: Path, content: dict, autoencoder: Autoencoder) -> tuple[torch.Tensor, torch.Tensor]:
+def pair_latents(path: Path, content: dict, autoencoder: Autoencoder, digest: str) -> tuple[torch.Tensor, torch.Tensor]:
     """Latents of a pairs file's ground truth (T,c,h,w) and degraded renders (K,T,c,h,w).
 
     Encoding costs about 30 CPU ms per frame, minutes for a set of pairs, and every restorer
     trained on the same pairs and autoencoder needs the same latents: they are cached next to
-    the pairs file as ``<stem>.latents-<autoencoder digest>.pt`` (written atomically).
+    the pairs file as ``<stem>.latents-<digest>.pt`` (``digest = autoencoder_digest(autoencoder)``,
+    computed once by the caller for all files; written atomically).
     """
-    cache = path.with_name(f"{path.stem}.latents-{autoencoder_digest(autoencoder)}.pt")
+    cache = path.with_name(f"{path.stem}.latents-{digest}.pt")
     if cache.is_file():
         cached = torch.load(cache, map_location="cpu", weights_only=True)
         if cached["gt"].shape[0] == content["gt"].shape[0] and cached["degraded"].shape[:2] == content["degraded"].shape[:2]:
@@ -205,10 +206,11 @@ def pair_latents(path: Path, content: dict, autoencoder: Autoencoder) -> tuple[t
 def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_structure: bool, keep_frames: bool) -> list[Sequence]:
     """Restoration pairs as sequences; ``keep_frames`` keeps degraded pixels for masking."""
     sequences = []
+    digest = autoencoder_digest(autoencoder)
     for path in files:
         content = load_pairs_file(path)
         degraded = content["degraded"]  # (K,T,H,W,3)
-        gt_latents, degraded_latents = pair_latents(path, content, autoencoder)
+        gt_latents, degraded_latents = pair_latents(path, content, autoencoder, digest)
         sequences.append(
             Sequence(
                 name=path.stem,
