@@ -45,6 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="training steps between updates (default: iterations / 5, i.e. four updates)")
     recon.add_argument("--max-offset", type=float, default=6.0, help="largest lateral offset in metres (default 6)")
     recon.add_argument("--restore-steps", type=int, default=None, help="DDIM steps of the restorer (default: its checkpoint's)")
+    recon.add_argument("--restorer-device", default=None,
+                       help="torch device of DriveRestorer (cpu or cuda; default: the reconstruction's --device)")
     recon.add_argument("--restore-strength", type=float, default=None,
                        help="restorer sampling strength in (0, 1]: 1 starts from pure noise, less from the noised render "
                        "(default: its checkpoint's)")
@@ -66,6 +68,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     dd4d.add_argument("--trajectories", default="shift@3,shift@6,lane_change",
                       help="comma-separated novel trajectories to generate (default: shift@3,shift@6,lane_change)")
     dd4d.add_argument("--generate-steps", type=int, default=None, help="DDIM steps of generation (default: the checkpoint's)")
+    dd4d.add_argument("--world-model-device", default=None,
+                      help="torch device of the world model while generating (cpu or cuda; default: the reconstruction's --device)")
     dd4d.set_defaults(func=run_train_dd4d)
 
 
@@ -74,9 +78,11 @@ def _config(args: argparse.Namespace):
 
     from recondreamer.errors import RecondreamerError
     from recondreamer.recon.config import make_config
+    from recondreamer.restorer.device import resolve_device
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    resolve_device(args.device, "--device")
     overrides = {"seed": args.seed, "backend": args.backend, "device": args.device}
     if args.iterations is not None:
         if args.iterations < 1:
@@ -89,6 +95,7 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.methods.loop import train_recondreamer
     from recondreamer.methods.pdus import PdusSchedule
+    from recondreamer.restorer.device import resolve_device
     from recondreamer.restorer.inference import load_restorer
     from recondreamer.scene import load_scene
     from recondreamer.sources.synthetic.truth import TrueViewRenderer
@@ -101,7 +108,8 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     if args.restorer == TRUTH:
         restorer, restorer_path = TrueViewRenderer(scene), TRUTH
     else:
-        restorer, restorer_path = load_restorer(args.restorer), str(Path(args.restorer).resolve())
+        device = resolve_device(args.restorer_device or args.device, "--restorer-device" if args.restorer_device else "--device")
+        restorer, restorer_path = load_restorer(args.restorer, device), str(Path(args.restorer).resolve())
     model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_steps,
                                restorer_path=restorer_path, restore_strength=args.restore_strength)
     log.info("done: ReconDreamer %s (stride %g m) with %d Gaussians in %s", args.model, args.stride,
@@ -112,6 +120,7 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
 def run_train_dd4d(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.methods.dd4d import train_dd4d
+    from recondreamer.restorer.device import resolve_device
     from recondreamer.restorer.inference import load_world_model
     from recondreamer.scene import load_scene
 
@@ -124,7 +133,8 @@ def run_train_dd4d(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     world_model = None
     if args.world_model is not None:
-        world_model = load_world_model(args.world_model)
+        device = resolve_device(args.world_model_device or args.device, "--world-model-device" if args.world_model_device else "--device")
+        world_model = load_world_model(args.world_model, device)
         if world_model.arch != "dd2":
             raise RecondreamerError(f"{args.world_model}: DriveDreamer4D needs the dd2 world model, got {world_model.arch!r}")
     model = train_dd4d(scene, config, args.out, world_model, trajectories, args.generate_steps, args.generated)

@@ -112,10 +112,12 @@ def run_train(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.recon.config import make_config
     from recondreamer.recon.trainer import train_scene
+    from recondreamer.restorer.device import resolve_device
     from recondreamer.scene import load_scene
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    resolve_device(args.device, "--device")  # a clear error before any work when CUDA is missing
     scene = load_scene(args.scene)
     overrides = {"seed": args.seed, "backend": args.backend, "device": args.device}
     if args.iterations is not None:

@@ -16,6 +16,7 @@ import torch
 
 from recondreamer.errors import CheckpointError
 from recondreamer.io import atomic_path
+from recondreamer.restorer.device import tensors_to_cpu
 
 FORMAT = "recondreamer.restorer"
 FORMAT_VERSION = 1
@@ -23,11 +24,12 @@ KINDS = ("autoencoder", "world_model", "restorer", "training_state")
 
 
 def save_checkpoint(path: str | os.PathLike, kind: str, arch: str, config: dict, state: dict, **extra) -> None:
-    """Write a checkpoint atomically (temporary file, then rename)."""
+    """Write a checkpoint atomically (temporary file, then rename), every tensor on the CPU."""
     if kind not in KINDS:
         raise ValueError(f"unknown checkpoint kind {kind!r}")
     payload = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind, "arch": arch, "config": config, "state": state}
     payload.update(extra)
+    payload = tensors_to_cpu(payload)  # a job trained on a GPU writes a file any machine loads
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)
 

@@ -20,6 +20,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--latent-channels", type=int, default=None, help="latent channels (default 4)")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     _add_threads_option(p)
+    _add_device_option(p)
     p.set_defaults(func=run_train_autoencoder)
 
     p = subparsers.add_parser("pretrain-world-model", help="pretrain an sd/svd/dd2 world model on corpus clips")
@@ -27,8 +28,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--corpus", required=True, help="corpus directory (scene directories below it)")
     p.add_argument("--autoencoder", required=True, help="autoencoder checkpoint (train-autoencoder output)")
     p.add_argument("--out", required=True, help="world-model checkpoint to write")
+    p.add_argument(
+        "--channels", type=int, nargs="+", default=None, metavar="C",
+        help="UNet channels per resolution level, finest first (default 32 64 64 from UNetConfig); spatial attention "
+        "on the coarsest level only, temporal attention on every level",
+    )
     _add_train_options(p)
     _add_threads_option(p)
+    _add_device_option(p)
     p.set_defaults(func=run_pretrain_world_model)
 
     p = subparsers.add_parser("make-pairs", help="render restoration pairs from reconstruction snapshots (paper Fig. 3)")
@@ -63,6 +70,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     _add_train_options(p)
     _add_threads_option(p)
+    _add_device_option(p)
     p.set_defaults(func=run_train_restorer)
 
     p = subparsers.add_parser("restore", help="restore a rendered clip with DriveRestorer")
@@ -74,6 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_sampling_options(p)
     p.add_argument("--strength", type=float, default=None, help="1 = start from noise; < 1 starts from the noised render (default from the checkpoint)")
     _add_threads_option(p)
+    _add_device_option(p)
     p.set_defaults(func=run_restore)
 
     p = subparsers.add_parser("dd4d-generate", help="DriveDreamer4D: generate a novel-trajectory video with the pretrained dd2 world model")
@@ -83,6 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder of generated frames {t:03d}.png")
     _add_sampling_options(p)
     _add_threads_option(p)
+    _add_device_option(p)
     p.set_defaults(func=run_dd4d_generate)
 
 
@@ -98,6 +108,20 @@ def _set_threads(args: argparse.Namespace) -> None:
     import torch
 
     torch.set_num_threads(max(1, args.threads))
+
+
+def _add_device_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--device", default="cpu",
+        help="torch device of the models: cpu (default) or cuda / cuda:N; checkpoints are written with CPU tensors "
+        "and load on any device",
+    )
+
+
+def _device(args: argparse.Namespace):
+    from recondreamer.restorer.device import resolve_device
+
+    return resolve_device(args.device, "--device")
 
 
 def _add_train_options(p: argparse.ArgumentParser) -> None:
@@ -140,6 +164,7 @@ def run_train_autoencoder(args: argparse.Namespace) -> int:
     from recondreamer.restorer.training import train_autoencoder
 
     _set_threads(args)
+    device = _device(args)
     config = AutoencoderConfig()
     if args.steps is not None:
         config = dataclasses.replace(config, steps=args.steps)
@@ -147,12 +172,13 @@ def run_train_autoencoder(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, latent_channels=args.latent_channels)
     scene_ids, frames = load_corpus_frames(args.corpus)
     LOG.info("autoencoder corpus: %d scenes (%s)", len(scene_ids), ", ".join(scene_ids))
-    metrics = train_autoencoder(frames, args.out, config, seed=args.seed)
+    metrics = train_autoencoder(frames, args.out, config, seed=args.seed, device=device)
     LOG.info("wrote %s: held-out PSNR %.2f dB, %.0f ms/step", args.out, metrics["heldout_psnr"], metrics["ms_per_step"])
     return 0
 
 
 def run_pretrain_world_model(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
     from recondreamer.restorer.config import DiffusionConfig, UNetConfig
     from recondreamer.restorer.data import (
         load_corpus_sequences,
@@ -162,17 +188,30 @@ def run_pretrain_world_model(args: argparse.Namespace) -> int:
     from recondreamer.restorer.training import pretrain_world_model
 
     _set_threads(args)
-    autoencoder, _ = load_autoencoder(args.autoencoder)
+    device = _device(args)
+    autoencoder, _ = load_autoencoder(args.autoencoder, device)
     uses_structure = args.arch == "dd2"
     names = structure_channel_names() if uses_structure else ()
     unet_config = UNetConfig(
         arch=args.arch, latent_channels=autoencoder.config.latent_channels, structure_channels=len(names),
         downsample_factor=autoencoder.config.downsample_factor,
     )
+    if args.channels is not None:
+        levels = len(args.channels)
+        if levels < 2 or any(c < 8 or c % 8 for c in args.channels):
+            raise RecondreamerError(
+                f"--channels {' '.join(map(str, args.channels))}: give at least 2 levels, each a positive multiple of 8 "
+                "(8 group-norm groups, 4 attention heads)"
+            )
+        unet_config = dataclasses.replace(
+            unet_config, channels=tuple(args.channels), attention_levels=(False,) * (levels - 1) + (True,), temporal_levels=(True,) * levels
+        )
     sequences = load_corpus_sequences(args.corpus, autoencoder, uses_structure)
     f = autoencoder.config.downsample_factor
     frame_size = (sequences[0].target.shape[-2] * f, sequences[0].target.shape[-1] * f)
-    stats = pretrain_world_model(sequences, autoencoder, unet_config, DiffusionConfig(), _train_config(args), names, frame_size, args.out)
+    stats = pretrain_world_model(
+        sequences, autoencoder, unet_config, DiffusionConfig(), _train_config(args), names, frame_size, args.out, device
+    )
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 
@@ -201,7 +240,8 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     from recondreamer.restorer.training import train_restorer
 
     _set_threads(args)
-    world = load_world_model(args.world_model)
+    device = _device(args)
+    world = load_world_model(args.world_model, device)
     masks = None
     if args.arch == "dd2_mask":
         masks = MaskConfig() if args.mask_probability is None else dataclasses.replace(MaskConfig(), probability=args.mask_probability)
@@ -217,7 +257,7 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     train = _train_config(args, world.train_config)
     if args.timestep_power is None:
         train = dataclasses.replace(train, timestep_power=RESTORER_TIMESTEP_POWER)
-    stats = train_restorer(world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space)
+    stats = train_restorer(world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device)
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 
@@ -247,7 +287,7 @@ def run_restore(args: argparse.Namespace) -> int:
     from recondreamer.restorer.inference import load_restorer, restore_clip
 
     _set_threads(args)
-    restorer = load_restorer(args.restorer)
+    restorer = load_restorer(args.restorer, _device(args))
     renders = read_frames(args.renders, args.trajectory)
     scene, reference, structure = _scene_conditions(args.scene, args.trajectory, restorer.unet_config.uses_structure)
     if renders.shape != reference.shape:
@@ -255,7 +295,7 @@ def run_restore(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     restored = restore_clip(restorer, renders, structure, num_steps=args.steps, overlap=args.overlap, strength=args.strength, seed=args.seed)
     seconds = time.perf_counter() - start
-    LOG.info("restored %d frames with %s in %.1f s", len(restored), restorer.arch, seconds)
+    LOG.info("restored %d frames with %s on %s in %.1f s", len(restored), restorer.arch, restorer.device, seconds)
     info = {"restorer": str(args.restorer), "arch": restorer.arch, "scene_id": scene.scene_id, "trajectory": args.trajectory, "seconds": seconds}
     write_frames(args.out, restored, info)
     return 0
@@ -267,14 +307,14 @@ def run_dd4d_generate(args: argparse.Namespace) -> int:
     from recondreamer.restorer.inference import generate_clip, load_world_model
 
     _set_threads(args)
-    world = load_world_model(args.world_model)
+    world = load_world_model(args.world_model, _device(args))
     if world.arch != "dd2":
         raise RecondreamerError(f"{args.world_model}: DriveDreamer4D generation needs the dd2 world model, got {world.arch!r}")
     scene, reference, structure = _scene_conditions(args.scene, args.trajectory, True)
     start = time.perf_counter()
     generated = generate_clip(world, reference, structure, num_steps=args.steps, overlap=args.overlap, seed=args.seed or 0)
     seconds = time.perf_counter() - start
-    LOG.info("generated %d frames along %s in %.1f s", len(generated), args.trajectory, seconds)
+    LOG.info("generated %d frames along %s on %s in %.1f s", len(generated), args.trajectory, world.device, seconds)
     info = {"world_model": str(args.world_model), "scene_id": scene.scene_id, "trajectory": args.trajectory, "seconds": seconds}
     write_frames(args.out, generated, info)
     return 0

@@ -154,7 +154,9 @@ def diffusion_loss(
         timesteps = torch.randint(0, schedule.num_timesteps, (b,), generator=generator)
     else:
         timesteps = schedule.sample_timesteps(b, timestep_power, generator)
-    noise = torch.randn(x0.shape, generator=generator)
+    # Drawn on the (CPU) generator and moved: the same draws on any device.
+    timesteps = timesteps.to(x0.device)
+    noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     noisy = schedule.add_noise(x0, noise, timesteps)
     return torch.mean((model_fn(noisy, timesteps) - schedule.training_target(x0, noise, timesteps)) ** 2)
 
@@ -179,13 +181,13 @@ def ddim_sample(
     if strength < 1.0:
         if start_latent is None:
             raise ValueError("strength < 1 needs a start latent to noise")
-        x = schedule.add_noise(start_latent, noise, torch.full((b,), steps[0], dtype=torch.long))
+        x = schedule.add_noise(start_latent, noise, torch.full((b,), steps[0], dtype=torch.long, device=noise.device))
     else:
         x = noise
     for index, step in enumerate(steps):
         a_t = alpha_bar[step]
         a_prev = alpha_bar[steps[index + 1]] if index + 1 < len(steps) else torch.tensor(1.0)
-        timesteps = torch.full((b,), step, dtype=torch.long)
+        timesteps = torch.full((b,), step, dtype=torch.long, device=noise.device)
         x0, eps = schedule.split_prediction(x, model_fn(x, timesteps), timesteps)
         if clip_x0 is not None:
             # Latents are normalised to unit variance; clipping the x0 estimate keeps the
@@ -196,5 +198,5 @@ def ddim_sample(
         direction = (1.0 - a_prev - sigma**2).clamp(min=0.0).sqrt() * eps
         x = a_prev.sqrt() * x0 + direction
         if eta > 0.0 and index + 1 < len(steps):
-            x = x + sigma * torch.randn(x.shape, generator=generator)
+            x = x + sigma * torch.randn(x.shape, generator=generator).to(x.device)
     return x

@@ -23,14 +23,14 @@ from recondreamer.restorer.diffusion import ddim_sample
 from recondreamer.restorer.models import GenerativeModel, load_generative_model
 
 
-def load_restorer(path: str | os.PathLike) -> GenerativeModel:
-    """A DriveRestorer checkpoint (``train-restorer`` output)."""
-    return load_generative_model(path, "restorer")
+def load_restorer(path: str | os.PathLike, device: torch.device | str = "cpu") -> GenerativeModel:
+    """A DriveRestorer checkpoint (``train-restorer`` output) on ``device``."""
+    return load_generative_model(path, "restorer", device)
 
 
-def load_world_model(path: str | os.PathLike) -> GenerativeModel:
-    """A pretrained world model checkpoint (``pretrain-world-model`` output)."""
-    return load_generative_model(path, "world_model")
+def load_world_model(path: str | os.PathLike, device: torch.device | str = "cpu") -> GenerativeModel:
+    """A pretrained world model checkpoint (``pretrain-world-model`` output) on ``device``."""
+    return load_generative_model(path, "world_model", device)
 
 
 def window_starts(num_frames: int, window: int, overlap: int) -> list[int]:
@@ -65,9 +65,10 @@ def blend_windows(
             shared = end - starts[index + 1]
             weights[end - start - shared :] = weights[end - start - shared :] * torch.arange(shared, 0, -1, dtype=torch.float32) / (shared + 1)
         if total is None:
-            total = torch.zeros((num_frames, *latents.shape[1:]))
-        total[start:end] += weights.reshape(-1, *([1] * (latents.dim() - 1))) * latents
-        weight_sum[start:end] += weights
+            total = torch.zeros((num_frames, *latents.shape[1:]), device=latents.device)
+            weight_sum = weight_sum.to(latents.device)
+        total[start:end] += weights.to(latents.device).reshape(-1, *([1] * (latents.dim() - 1))) * latents
+        weight_sum[start:end] += weights.to(latents.device)
     return total / weight_sum.reshape(-1, *([1] * (total.dim() - 1)))
 
 
@@ -110,7 +111,12 @@ def _sample_clip(
 ) -> torch.Tensor:  # (T,c,h,w)
     num_frames = reference_latents.shape[0]
     generator = torch.Generator().manual_seed(seed)
-    noise = torch.randn(reference_latents.shape, generator=generator)
+    # Conditions and noise (drawn on the CPU generator: the same on any device) go to the model's device.
+    device = model.device
+    noise = torch.randn(reference_latents.shape, generator=generator).to(device)
+    reference_latents = reference_latents.to(device)
+    structure = None if structure is None else structure.to(device)
+    degraded_latents = None if degraded_latents is None else degraded_latents.to(device)
     unet = model.unet.eval()
 
     def sample_window(start: int, end: int) -> torch.Tensor:

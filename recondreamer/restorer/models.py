@@ -21,6 +21,7 @@ from recondreamer.restorer.config import (
     config_from_dict,
     config_to_dict,
 )
+from recondreamer.restorer.device import module_device
 from recondreamer.restorer.diffusion import NoiseSchedule
 from recondreamer.restorer.unet import LatentUNet
 
@@ -37,9 +38,9 @@ def autoencoder_payload(autoencoder: Autoencoder) -> dict:
     return {"config": config_to_dict(autoencoder.config), "state": autoencoder.state_dict()}
 
 
-def load_autoencoder(path: str | os.PathLike) -> tuple[Autoencoder, dict]:
+def load_autoencoder(path: str | os.PathLike, device: torch.device | str = "cpu") -> tuple[Autoencoder, dict]:
     payload = load_checkpoint(path, "autoencoder")
-    return autoencoder_from_payload(payload), payload
+    return autoencoder_from_payload(payload).to(device), payload
 
 
 @dataclass
@@ -59,6 +60,16 @@ class GenerativeModel:
     mask_config: MaskConfig | None = None
     restore_config: RestoreConfig = dataclasses.field(default_factory=RestoreConfig)
 
+    @property
+    def device(self) -> torch.device:
+        return module_device(self.unet)
+
+    def to(self, device: torch.device | str) -> GenerativeModel:
+        """Move the UNet and the autoencoder to ``device`` (in place); returns the model."""
+        self.unet.to(device)
+        self.autoencoder.to(device)
+        return self
+
 
 def model_config_dict(model: GenerativeModel) -> dict:
     return {
@@ -72,7 +83,7 @@ def model_config_dict(model: GenerativeModel) -> dict:
     }
 
 
-def model_from_payload(payload: dict) -> GenerativeModel:
+def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> GenerativeModel:
     config = payload["config"]
     unet_config = config_from_dict(UNetConfig, config["unet"])
     unet = LatentUNet(unet_config)
@@ -92,12 +103,12 @@ def model_from_payload(payload: dict) -> GenerativeModel:
         frame_size=tuple(config["frame_size"]),
         mask_config=None if config.get("masks") is None else config_from_dict(MaskConfig, config["masks"]),
         restore_config=config_from_dict(RestoreConfig, config.get("restore") or {}),
-    )
+    ).to(device)
 
 
-def load_generative_model(path: str | os.PathLike, kind: str) -> GenerativeModel:
-    """Load a ``world_model`` or ``restorer`` checkpoint (CheckpointError on the wrong kind)."""
-    return model_from_payload(load_checkpoint(path, kind))
+def load_generative_model(path: str | os.PathLike, kind: str, device: torch.device | str = "cpu") -> GenerativeModel:
+    """Load a ``world_model`` or ``restorer`` checkpoint (CheckpointError on the wrong kind) onto ``device``."""
+    return model_from_payload(load_checkpoint(path, kind), device)
 
 
 def restorer_unet_from_world_model(world: GenerativeModel, arch: str) -> LatentUNet:

@@ -20,7 +20,11 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.restorer.autoencoder import Autoencoder, frames_to_tensor
+from recondreamer.restorer.autoencoder import (
+    Autoencoder,
+    autoencoder_device,
+    frames_to_tensor,
+)
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import (
     AutoencoderConfig,
@@ -32,6 +36,7 @@ from recondreamer.restorer.config import (
     config_to_dict,
 )
 from recondreamer.restorer.data import Sequence
+from recondreamer.restorer.device import module_device
 from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss
 from recondreamer.restorer.masks import sample_clip_masks
 from recondreamer.restorer.models import (
@@ -186,8 +191,10 @@ def split_heldout(scene_frames: list[np.ndarray]) -> tuple[np.ndarray, np.ndarra
     return frames[~held], frames[held]
 
 
-def train_autoencoder(scene_frames: list[np.ndarray], out: str | os.PathLike, config: AutoencoderConfig, seed: int = 0) -> dict:
-    """Train on random crops of corpus frames (L1 + small SSIM term); report held-out PSNR."""
+def train_autoencoder(
+    scene_frames: list[np.ndarray], out: str | os.PathLike, config: AutoencoderConfig, seed: int = 0, device: torch.device | str = "cpu"
+) -> dict:
+    """Train on random crops of corpus frames (L1 + small SSIM term) on ``device``; report held-out PSNR."""
     import kornia
 
     train_frames, heldout = split_heldout(scene_frames)
@@ -196,7 +203,7 @@ def train_autoencoder(scene_frames: list[np.ndarray], out: str | os.PathLike, co
     if height % f or width % f or min(height, width) < config.crop_size:
         raise RecondreamerError(f"corpus frame size {width}x{height} must be divisible by {f} and at least {config.crop_size} px")
     torch.manual_seed(seed)
-    model = Autoencoder(config)
+    model = Autoencoder(config).to(device)
     LOG.info("autoencoder: %d parameters, %d training and %d held-out frames", count_parameters(model), len(train_frames), len(heldout))
 
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
@@ -204,7 +211,7 @@ def train_autoencoder(scene_frames: list[np.ndarray], out: str | os.PathLike, co
         top = rng.integers(0, height - config.crop_size + 1, size=config.batch_size)
         left = rng.integers(0, width - config.crop_size + 1, size=config.batch_size)
         crops = np.stack([train_frames[i, y : y + config.crop_size, x : x + config.crop_size] for i, y, x in zip(index, top, left)])
-        images = frames_to_tensor(crops)
+        images = frames_to_tensor(crops).to(device)
         recon = model(images)
         l1 = torch.mean(torch.abs(recon - images))
         ssim = kornia.losses.ssim_loss((recon + 1) / 2, (images + 1) / 2, window_size=7)
@@ -216,7 +223,7 @@ def train_autoencoder(scene_frames: list[np.ndarray], out: str | os.PathLike, co
         checkpoint_every=200, log_every=50, seed=seed,
     )
     sample = train_frames[np.random.default_rng(seed).choice(len(train_frames), size=min(64, len(train_frames)), replace=False)]
-    model.set_latent_statistics(frames_to_tensor(sample))
+    model.set_latent_statistics(frames_to_tensor(sample).to(device))
     heldout_psnr = autoencoder_psnr(model, heldout)
     LOG.info("autoencoder: held-out reconstruction PSNR %.2f dB", heldout_psnr)
     metrics = dict(stats, heldout_psnr=heldout_psnr, frame_size=[height, width])
@@ -287,7 +294,8 @@ def sample_batch(
                 masked = np.flatnonzero(~keep.all(axis=(1, 2)))  # frames with a mask: re-encode only those
                 if masked.size:
                     with torch.no_grad():
-                        latents[masked] = autoencoder.encode(frames_to_tensor(pixels[masked] * keep[masked, ..., None]))
+                        masked_frames = frames_to_tensor(pixels[masked] * keep[masked, ..., None]).to(autoencoder_device(autoencoder))
+                        latents[masked] = autoencoder.encode(masked_frames).cpu()
                 degraded.append(latents[:, :, rows, cols])
             else:
                 degraded.append(seq.degraded[stage, frames, :, rows, cols])
@@ -304,7 +312,10 @@ def unet_loss(
     unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0
 ) -> torch.Tensor:
     """The diffusion loss (MSE to the schedule's prediction target at a random step per clip) of
-    one batch, in the schedule's target space (residual restorers: relative to the degraded clip)."""
+    one batch, in the schedule's target space (residual restorers: relative to the degraded clip).
+    The batch (built on the CPU) is moved to the UNet's device."""
+    device = module_device(unet)
+    batch = {name: None if value is None else value.to(device) for name, value in batch.items()}
 
     def model_fn(noisy: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
         return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])
@@ -334,10 +345,11 @@ def pretrain_world_model(
     structure_channels: tuple[str, ...],
     frame_size: tuple[int, int],
     out: str | os.PathLike,
+    device: torch.device | str = "cpu",
 ) -> dict:
-    """Learn to generate corpus clips from a reference frame (and structure maps for dd2)."""
+    """Learn to generate corpus clips from a reference frame (and structure maps for dd2) on ``device``."""
     torch.manual_seed(train.seed)
-    unet = LatentUNet(unet_config)
+    unet = LatentUNet(unet_config).to(device)  # initialised on the CPU: the same weights on any device
     schedule = NoiseSchedule(diffusion_config)
     LOG.info("world model %s: %d parameters, %d sequences", unet_config.arch, count_parameters(unet), len(sequences))
     model = GenerativeModel(
@@ -370,14 +382,17 @@ def train_restorer(
     out: str | os.PathLike,
     world_model_path: str,
     target_space: str = "residual",
+    device: torch.device | str = "cpu",
 ) -> dict:
     """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition.
 
     ``target_space`` "residual" diffuses (clean - degraded) / scale with the scale measured on
     the pairs (``diffusion.py``); "clean" diffuses clean latents as the world model does.
+    Trains on ``device``, where ``world`` (whose autoencoder re-encodes masked frames) is moved.
     """
     torch.manual_seed(train.seed)
-    unet = restorer_unet_from_world_model(world, arch)
+    world.to(device)
+    unet = restorer_unet_from_world_model(world, arch).to(device)
     scale = residual_scale(sequences) if target_space == "residual" else 1.0
     diffusion_config = dataclasses.replace(world.diffusion_config, target_space=target_space, residual_scale=scale)
     schedule = NoiseSchedule(diffusion_config)

@@ -11,8 +11,9 @@ it computes in float32 (float64 inputs are cast and the outputs cast back).
 The screen-space means gsplat differentiates are a (1,N,2) tensor inside its graph; the
 ``means2d`` returned here is its (N,2) view, and a gradient hook copies the gradient that
 reaches the (1,N,2) tensor into ``means2d.grad`` so that ``retain_grad()`` + ``.grad`` works
-as on the CPU backends. This path needs a CUDA device and has not been run in this project's
-CPU-only CI.
+as on the CPU backends. An empty scene (no Gaussians) is rendered here without gsplat, whose
+extension kills the process on one. This path needs a CUDA device: CI has none; it passed the
+backend tests (tests/test_splat_backends.py) on an H100 with gsplat 1.5.3 (docs/gpu.md).
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ def rasterize_gsplat(
             "backend='gsplat' needs the gsplat package: pip install 'recondreamer[cuda]'"
         ) from error
 
+    if means.shape[0] == 0:
+        return _empty_scene(means, quats, scales, viewmat, K, width, height, background)
     dtype = means.dtype
     f32 = [t.float() for t in (means, quats, scales, opacities, colors, viewmat, K)]
     means_f, quats_f, scales_f, opacities_f, colors_f, viewmat_f, K_f = f32
@@ -90,3 +93,17 @@ def rasterize_gsplat(
         "radii": projected.radii,
         "visible": projected.visible,
     }
+
+
+def _empty_scene(means, quats, scales, viewmat, K, width: int, height: int, background) -> dict[str, torch.Tensor]:
+    """The render of zero Gaussians (the background, nothing else), without gsplat: its CUDA
+    extension kills the process with a floating-point exception on an empty scene (seen with
+    gsplat 1.5.3 on an H100, docs/gpu.md)."""
+    projected = project_gaussians(means, quats, scales, viewmat, K, width, height)
+    # The sum over no Gaussians (0) ties the outputs to the inputs' graph, as on the other
+    # backends: backward() runs and gives zero (or no) gradients.
+    nothing = means.sum() * 0.0
+    zeros = means.new_zeros((height, width)) + nothing
+    rgb = means.new_zeros((height, width, 3)) if background is None else background.expand(height, width, 3)
+    return {"rgb": rgb + nothing, "depth": zeros, "alpha": zeros.clone(), "means2d": projected.means2d,
+            "radii": projected.radii, "visible": projected.visible}

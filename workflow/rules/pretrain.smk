@@ -1,6 +1,11 @@
 # The generative models' pretraining on the corpus: latent autoencoder, then the world models
 # standing in for Stable Diffusion (sd), Stable Video Diffusion (svd) and DriveDreamer-2 (dd2).
 
+# ' --device D' where pretrain.device / restorer.device is set, else '': appended to an existing
+# parameter, so that the default (null) leaves every command, and so every finished job, unchanged.
+PRETRAIN_DEVICE = "" if config["pretrain"]["device"] is None else " " + option("--device", config["pretrain"]["device"])
+RESTORER_DEVICE = "" if config["restorer"]["device"] is None else " " + option("--device", config["restorer"]["device"])
+
 
 rule train_autoencoder:
     input:
@@ -10,7 +15,7 @@ rule train_autoencoder:
     params:
         corpus=lambda wildcards, input: parent(input[0]),
         steps=option("--steps", config["pretrain"]["autoencoder_steps"]),
-        latent=option("--latent-channels", config["pretrain"]["latent_channels"]),
+        latent=option("--latent-channels", config["pretrain"]["latent_channels"]) + PRETRAIN_DEVICE,
         seed=config["pretrain"]["seed"],
     threads: config["threads"]["pretrain"]
     log:
@@ -33,7 +38,8 @@ rule pretrain_world_model:
         options=" ".join(
             option(flag, config["pretrain"][key])
             for flag, key in (("--steps", "world_model_steps"), ("--batch-size", "batch_size"), ("--window", "window"), ("--seed", "seed"))
-        ),
+        )
+        + PRETRAIN_DEVICE,
     threads: config["threads"]["pretrain"]
     log:
         log_file("pretrain_world_model", "{arch}"),

@@ -10,6 +10,8 @@ PDUS_OPTIONS = " ".join(
         ("--restore-strength", "restore_strength"),
     )
 )
+# The DriveRestorer inside the loop runs on restorer.device when set (else on the recon's device).
+RESTORER_PDUS_OPTIONS = PDUS_OPTIONS + ("" if config["restorer"]["device"] is None else " " + option("--restorer-device", config["restorer"]["device"]))
 
 
 rule train_recondreamer:
@@ -21,7 +23,7 @@ rule train_recondreamer:
     params:
         run=lambda wildcards: run_dir(RESULTS, wildcards.segment, f"recondreamer-{wildcards.backbone}-{wildcards.restorer}-stride{wildcards.stride}"),
         options=RECON_OPTIONS,
-        pdus=PDUS_OPTIONS,
+        pdus=RESTORER_PDUS_OPTIONS,
     threads: config["threads"]["recon"]
     log:
         log_file("train_recondreamer", "{segment}/{backbone}-{restorer}-stride{stride}"),
@@ -67,7 +69,7 @@ rule generate_dd4d:
         directory(results("dd4d_generated", "{segment}", "{trajectory}")),
     params:
         seed=lambda wildcards: config["recon"]["seed"] + DD4D_TRAJECTORIES.index(wildcards.trajectory),
-        steps=option("--steps", config["methods"]["dd4d_generate_steps"]),
+        steps=option("--steps", config["methods"]["dd4d_generate_steps"]) + RESTORER_DEVICE,
     threads: config["threads"]["restorer"]
     log:
         log_file("generate_dd4d", "{segment}/{trajectory}"),

@@ -51,7 +51,8 @@ rule train_restorer:
         options=" ".join(
             option(flag, config["restorer"][key])
             for flag, key in (("--batch-size", "batch_size"), ("--window", "window"), ("--seed", "seed"))
-        ),
+        )
+        + RESTORER_DEVICE,
         mask=lambda wildcards: option("--mask-probability", config["restorer"]["mask_probability"]) if wildcards.restorer == "dd2_mask" else "",
     threads: config["threads"]["restorer"]
     log:
