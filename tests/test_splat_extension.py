@@ -52,6 +52,20 @@ def test_cache_name_follows_source_and_flags(tmp_path, monkeypatch):
     assert cpu_kernel.extension_name(flags) != name
 
 
+def test_cache_name_differs_between_checkouts(tmp_path, monkeypatch):
+    """The same sources in another folder (a second checkout) build into their own cache folder."""
+    flags = cpu_kernel.compiler_flags()
+    name = cpu_kernel.extension_name(flags)
+    copies = []
+    for path in cpu_kernel.SOURCES + cpu_kernel.HEADERS:
+        copy = tmp_path / path.name
+        copy.write_bytes(path.read_bytes())
+        copies.append(copy)
+    monkeypatch.setattr(cpu_kernel, "SOURCES", tuple(copies[: len(cpu_kernel.SOURCES)]))
+    monkeypatch.setattr(cpu_kernel, "HEADERS", tuple(copies[len(cpu_kernel.SOURCES) :]))
+    assert cpu_kernel.extension_name(flags) != name
+
+
 def test_built_extension_is_reused_by_a_new_process():
     cpu_kernel.load_extension()
     build_dir = cpu_kernel.cache_root() / cpu_kernel.extension_name(cpu_kernel.compiler_flags())

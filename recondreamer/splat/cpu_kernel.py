@@ -81,9 +81,13 @@ def torch_uses_openmp() -> bool:
 
 
 def extension_name(flags: tuple[str, ...]) -> str:
-    """Name (and cache folder) of the build: changes whenever a source, a flag or torch changes."""
+    """Name (and cache folder) of the build: changes whenever a source, a flag or torch changes.
+
+    The sources' absolute paths are part of the key too: the build file names them by path, so two
+    checkouts sharing one cache would otherwise rebuild each other's library on every switch."""
     digest = hashlib.sha256(" ".join(flags).encode() + torch.__version__.encode())
     for path in SOURCES + HEADERS:
+        digest.update(str(path.resolve()).encode())
         digest.update(path.read_bytes())
     return f"recondreamer_splat_cpu_{digest.hexdigest()[:16]}"
 
