@@ -14,6 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from recondreamer.restorer.config import AutoencoderConfig
+from recondreamer.restorer.device import module_device
 
 
 class PlainResBlock(nn.Module):
@@ -107,17 +108,13 @@ def tensor_to_frames(images: torch.Tensor) -> np.ndarray:  # (N,3,H,W) in [-1,1]
     return scaled.permute(0, 2, 3, 1).cpu().numpy()
 
 
-def autoencoder_device(autoencoder: Autoencoder) -> torch.device:
-    return autoencoder.latent_mean.device
-
-
 @torch.no_grad()
 def encode_frames(autoencoder: Autoencoder, frames: np.ndarray, batch_size: int = 16) -> torch.Tensor:
     """(N,H,W,3) uint8 -> (N,c,h,w) standardised latents, in batches to bound memory.
 
     Encodes on the autoencoder's device and returns the latents on the CPU, where data sets live.
     """
-    device = autoencoder_device(autoencoder)
+    device = module_device(autoencoder)
     chunks = [
         autoencoder.encode(frames_to_tensor(frames[i : i + batch_size]).to(device)).cpu() for i in range(0, len(frames), batch_size)
     ]
@@ -127,6 +124,6 @@ def encode_frames(autoencoder: Autoencoder, frames: np.ndarray, batch_size: int 
 @torch.no_grad()
 def decode_latents(autoencoder: Autoencoder, latents: torch.Tensor, batch_size: int = 16) -> np.ndarray:
     """(N,c,h,w) standardised latents (any device) -> (N,H,W,3) uint8, decoded on the autoencoder's device."""
-    device = autoencoder_device(autoencoder)
+    device = module_device(autoencoder)
     chunks = [tensor_to_frames(autoencoder.decode(latents[i : i + batch_size].to(device))) for i in range(0, len(latents), batch_size)]
     return np.concatenate(chunks, axis=0)

@@ -20,11 +20,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.restorer.autoencoder import (
-    Autoencoder,
-    autoencoder_device,
-    frames_to_tensor,
-)
+from recondreamer.restorer.autoencoder import Autoencoder, frames_to_tensor
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import (
     AutoencoderConfig,
@@ -294,7 +290,7 @@ def sample_batch(
                 masked = np.flatnonzero(~keep.all(axis=(1, 2)))  # frames with a mask: re-encode only those
                 if masked.size:
                     with torch.no_grad():
-                        masked_frames = frames_to_tensor(pixels[masked] * keep[masked, ..., None]).to(autoencoder_device(autoencoder))
+                        masked_frames = frames_to_tensor(pixels[masked] * keep[masked, ..., None]).to(module_device(autoencoder))
                         latents[masked] = autoencoder.encode(masked_frames).cpu()
                 degraded.append(latents[:, :, rows, cols])
             else:
