@@ -75,11 +75,18 @@ def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments:
     return counts
 
 
-def test_default_config_dry_run_job_counts(tmp_path):
+@pytest.mark.parametrize(("configfile", "scene_preset", "iterations"), [("config/config.yaml", "compact", "--iterations 1000"), ("config/full.yaml", "default", None)])
+def test_synthetic_configs_dry_run_job_counts(tmp_path, configfile, scene_preset, iterations):
+    """The default (compact, one hour) and full-size synthetic configs build the same DAG at different sizes."""
     root = workflow_copy(tmp_path)
-    result = snakemake(root, "-n", "--quiet", "rules")
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", configfile)
     assert result.returncode == 0, result.stderr
     assert job_counts(result.stdout + result.stderr) == expected_counts(8, 24, 4, True, judge=True, synthetic=True)
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", configfile, "--until", "train_baseline").stdout
+    synth = [line for line in shell.splitlines() if "recondreamer synth " in line]
+    train = [line for line in shell.splitlines() if "recondreamer train-recon " in line]
+    assert len(synth) == 8 and all(f"--preset {scene_preset} " in line for line in synth)
+    assert len(train) == 4 * 8 and all((iterations in line) if iterations else ("--iterations" not in line) for line in train)
 
 
 def test_paper_waymo_config_dry_run_job_counts(tmp_path):

@@ -6,7 +6,7 @@ import argparse
 import logging
 
 log = logging.getLogger(__name__)
-PRESET_NAMES = ("default", "quick")  # keep in step with config.PRESETS (not imported: --help stays light)
+PRESET_NAMES = ("default", "compact", "quick")  # keep in step with config.PRESETS (not imported: --help stays light)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     synth.add_argument("--seed", type=int, required=True, help="world seed (non-negative integer)")
     synth.add_argument("--out", required=True, help="scene directory to write (replaced atomically if it exists)")
-    synth.add_argument("--preset", default="default", choices=PRESET_NAMES, help="render preset: default = 240x160, 40 frames; quick = 96x64, 12 frames (default: default)")
+    synth.add_argument("--preset", default="default", choices=PRESET_NAMES, help="render preset: default = 240x160, 40 frames; compact = 144x96, 24 frames; quick = 96x64, 12 frames (default: default)")
     synth.add_argument("--width", type=int, help="override the preset's image width in pixels")
     synth.add_argument("--height", type=int, help="override the preset's image height in pixels")
     synth.add_argument("--frames", type=int, help="override the preset's number of frames (10 Hz)")
