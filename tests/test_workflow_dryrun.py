@@ -75,7 +75,7 @@ def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments:
     return counts
 
 
-@pytest.mark.parametrize(("configfile", "scene_preset", "iterations"), [("config/config.yaml", "compact", "--iterations 1000"), ("config/full.yaml", "default", None)])
+@pytest.mark.parametrize(("configfile", "scene_preset", "iterations"), [("config/config.yaml", "compact", "--iterations 700"), ("config/full.yaml", "default", None)])
 def test_synthetic_configs_dry_run_job_counts(tmp_path, configfile, scene_preset, iterations):
     """The default (compact, one hour) and full-size synthetic configs build the same DAG at different sizes."""
     root = workflow_copy(tmp_path)
