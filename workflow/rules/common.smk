@@ -111,6 +111,11 @@ CORPUS_SCENES = [f"corpus-{i:03d}" for i in range(config["synthetic"]["corpus"][
 PAIR_CORPUS_SCENES = CORPUS_SCENES[: config["restorer"]["pair_corpus_scenes"]]
 WORLD_MODEL_OF = {"sd": "sd", "svd": "svd", "dd2": "dd2", "dd2_mask": "dd2"}  # dd2_mask fine-tunes the dd2 world model
 TABLES = [1, 2, 4, 5] if config["preference"]["judge"] == "none" else [1, 2, 3, 4, 5]
+# Scheduling priorities (config/README.md, "Time"). No ReconDreamer run can start before the
+# restorers exist, so the chain corpus -> autoencoder -> world models -> pairs -> restorers goes
+# first; the baselines the pairs read and the evaluation models every evaluation waits for come next.
+RESTORER_PATH_PRIORITY = 10
+FEEDER_PRIORITY = 5
 
 
 wildcard_constraints:

@@ -18,7 +18,7 @@ rule train_eval_models:
         ),
         min_lidar_points=config["evaluation"]["min_lidar_points"],
     threads: config["threads"]["evaluate"]
-    priority: 5  # every evaluation waits for it: train it while the generative chain runs
+    priority: FEEDER_PRIORITY
     log:
         log_file("train_eval_models", "all"),
     benchmark:

@@ -18,7 +18,7 @@ rule train_autoencoder:
         latent=option("--latent-channels", config["pretrain"]["latent_channels"]) + PRETRAIN_DEVICE,
         seed=config["pretrain"]["seed"],
     threads: config["threads"]["pretrain"]
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("train_autoencoder", "all"),
     benchmark:
@@ -42,7 +42,7 @@ rule pretrain_world_model:
         )
         + PRETRAIN_DEVICE,
     threads: config["threads"]["pretrain"]
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("pretrain_world_model", "{arch}"),
     benchmark:

@@ -16,7 +16,7 @@ rule train_baseline:
         run=lambda wildcards: run_dir(RESULTS, wildcards.segment, f"baseline-{wildcards.backbone}"),
         options=RECON_OPTIONS,
     threads: config["threads"]["recon"]
-    priority: 5  # the restoration pairs read every baseline: before renders and evaluations
+    priority: FEEDER_PRIORITY
     log:
         log_file("train_baseline", "{segment}/{backbone}"),
     benchmark:
@@ -35,7 +35,7 @@ rule train_corpus_recon:
         run=lambda wildcards: results("corpus_runs", wildcards.corpus_scene, wildcards.backbone),
         options=RECON_OPTIONS,
     threads: config["threads"]["recon"]
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("train_corpus_recon", "{corpus_scene}/{backbone}"),
     benchmark:

@@ -12,7 +12,7 @@ rule make_pairs_segment:
         runs=lambda wildcards, input: " ".join(os.path.dirname(path) for path in input.runs),
         stages=config["restorer"]["pair_stages"],
     threads: config["threads"]["restorer"]
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("make_pairs_segment", "{segment}"),
     benchmark:
@@ -32,7 +32,7 @@ rule make_pairs_corpus:
         runs=lambda wildcards, input: " ".join(os.path.dirname(path) for path in input.runs),
         stages=config["restorer"]["pair_stages"],
     threads: config["threads"]["restorer"]
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("make_pairs_corpus", "{corpus_scene}"),
     benchmark:
@@ -57,7 +57,7 @@ rule train_restorer:
         + RESTORER_DEVICE,
         mask=lambda wildcards: option("--mask-probability", config["restorer"]["mask_probability"]) if wildcards.restorer == "dd2_mask" else "",
     threads: config["threads"]["restorer"]
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("train_restorer", "{restorer}"),
     benchmark:

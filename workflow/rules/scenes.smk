@@ -8,7 +8,7 @@ if config["source"] == "synthetic":
         params:
             seed=lambda wildcards: config["synthetic"]["segments"][wildcards.segment],
             preset=config["synthetic"]["preset"],
-        priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+        priority: RESTORER_PATH_PRIORITY
         log:
             log_file("synth_segment", "{segment}"),
         benchmark:
@@ -43,7 +43,7 @@ rule synth_corpus_scene:
     params:
         seed=lambda wildcards: config["synthetic"]["corpus"]["first_seed"] + CORPUS_SCENES.index(wildcards.corpus_scene),
         preset=config["synthetic"]["corpus"]["preset"],
-    priority: 10  # on the path to the restorers, which every ReconDreamer run waits for (config/README.md)
+    priority: RESTORER_PATH_PRIORITY
     log:
         log_file("synth_corpus_scene", "{corpus_scene}"),
     benchmark:
