@@ -182,6 +182,35 @@ def test_evaluate_command_writes_every_metric(scene, scene_dir, tiny_models, tmp
     assert json.loads(pooled.read_text())["fid"] == pytest.approx(doc["fid_pooled"]["fid"])
 
 
+def test_evaluate_with_run_renders_then_scores_like_render_and_evaluate(scene, scene_dir, tiny_models, tmp_path):
+    """--run renders in the same process: frames as 'render' writes them, metrics as scoring those frames."""
+    from recondreamer.recon import make_config, train_scene
+
+    config = make_config("street", "quick", iterations=4, backend="cpu")
+    config.snapshot_steps = ()
+    config.init.max_lidar_points = 300
+    run = tmp_path / "run"
+    train_scene(scene, config, run)
+    trajectories = ("shift@3", "lane_change")
+    separate, together = tmp_path / "separate", tmp_path / "together"
+    for name in trajectories:
+        assert main(["render", "--run", str(run), "--scene", str(scene_dir), "--trajectory", name, "--out", str(separate / name)]) == 0
+    common = ["evaluate", "--scene", str(scene_dir), "--models", str(tiny_models)]
+    pairs = lambda root: [arg for name in trajectories for arg in ("--trajectory", name, "--renders", str(root / name))]  # noqa: E731
+    assert main([*common, *pairs(separate), "--out", str(tmp_path / "separate.json")]) == 0
+    assert main([*common, "--run", str(run), "--threads", "1", *pairs(together), "--out", str(tmp_path / "together.json")]) == 0
+    for name in trajectories:
+        assert sorted(p.name for p in (together / name).iterdir()) == sorted(p.name for p in (separate / name).iterdir())
+        for t in range(scene.num_frames):
+            assert np.array_equal(np.asarray(Image.open(together / name / f"{t:03d}.png")), np.asarray(Image.open(separate / name / f"{t:03d}.png")))
+    metrics = [json.loads((tmp_path / f"{which}.json").read_text())["trajectories"] for which in ("separate", "together")]
+    assert metrics[0] == metrics[1]
+    # A bad trajectory is refused before any frame is rendered.
+    assert main([*common, "--run", str(run), "--trajectory", "shift@3", "--renders", str(tmp_path / "bad" / "a"),
+                 "--trajectory", "sideways", "--renders", str(tmp_path / "bad" / "b"), "--out", str(tmp_path / "bad.json")]) == 1
+    assert not (tmp_path / "bad").exists() and not (tmp_path / "bad.json").exists()
+
+
 def test_fid_through_the_feature_network_grows_with_noise(scene, tiny_models):
     model = inference.load_model(tiny_models / "fid_features.pt", "fid_features").module
     from recondreamer.evaluation.frechet import fid_from_features

@@ -60,8 +60,7 @@ def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments:
         "generate_dd4d": 3 * segments,  # DriveDreamer4D's 3 trajectories, generated once per segment
         "train_dd4d": 3 * segments,
         "train_recondreamer": 11 * segments,
-        "render_trajectories": runs_per_segment * segments,
-        "evaluate": runs_per_segment * segments,
+        "evaluate": runs_per_segment * segments,  # renders the run along every trajectory, then scores it
         "judge": 1 if judge else 0,
         "study_page": 1,
         "make_tables": 1,

@@ -16,7 +16,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 WORKFLOW_COMMANDS = (
-    "synth", "train-eval-models", "train-autoencoder", "pretrain-world-model", "train-recon", "render",
+    "synth", "train-eval-models", "train-autoencoder", "pretrain-world-model", "train-recon",
     "make-pairs", "train-restorer", "train-recondreamer", "train-dd4d", "evaluate", "judge", "study-page",
     "make-tables", "make-plots", "pdus-figure", "benchmark-summary",
 )

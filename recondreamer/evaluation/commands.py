@@ -42,11 +42,14 @@ def register(subparsers) -> None:
         "evaluate",
         help="NTA-IoU, NTL-IoU, FID (and PSNR/SSIM against true novel views) of rendered frames",
         description="Score the renders of one scene along one or more trajectories. Give --trajectory and "
-        "--renders once per trajectory, in the same order. Writes every metric and the settings that produced "
-        "it to --out, and the FID features to --features-out (for fid-pool).",
+        "--renders once per trajectory, in the same order. With --run, the trained reconstruction is first "
+        "rendered along each trajectory into its --renders directory (one process for both steps, as the "
+        "workflow does). Writes every metric and the settings that produced it to --out, and the FID features "
+        "to --features-out (for fid-pool).",
     )
     p.add_argument("--scene", required=True, type=Path, help="scene directory the renders belong to")
-    p.add_argument("--renders", required=True, action="append", type=Path, help="directory of rendered frames 000.png... (repeatable)")
+    p.add_argument("--renders", required=True, action="append", type=Path, help="directory of rendered frames 000.png... (repeatable; written first when --run is given)")
+    p.add_argument("--run", type=Path, default=None, help="run directory of a trained reconstruction to render into the --renders directories first (default: score existing renders)")
     p.add_argument("--trajectory", required=True, action="append", help="trajectory of the matching --renders: original, shift@Y, lane_change or file:PATH (repeatable)")
     p.add_argument("--models", type=Path, default=None, help="directory written by train-eval-models")
     p.add_argument("--detector", type=Path, default=None, help="vehicle detector model file (overrides --models)")
@@ -56,6 +59,7 @@ def register(subparsers) -> None:
     p.add_argument("--score-threshold", type=float, default=0.5, help="detector confidence threshold (default 0.5)")
     p.add_argument("--out", required=True, type=Path, help="metrics JSON file to write")
     p.add_argument("--features-out", type=Path, default=None, help="FID feature file (default: OUT with suffix .features.npz)")
+    p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.set_defaults(func=_evaluate)
 
     p = subparsers.add_parser("fid-pool", help="FID pooled over several evaluate runs (scenes and trajectories)", description="Pool the FID features written by several 'evaluate' runs: all rendered frames against all reference frames (one set per scene).")
@@ -133,13 +137,23 @@ def _train_eval_models(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace) -> int:
+    import torch
+
     from recondreamer.errors import RecondreamerError
     from recondreamer.evaluation.evaluate import evaluate_scene, load_eval_models, write_features
     from recondreamer.io import write_json_atomic
 
     if len(args.renders) != len(args.trajectory):
         raise RecondreamerError(f"give one --renders per --trajectory: got {len(args.renders)} --renders and {len(args.trajectory)} --trajectory")
+    if args.threads:
+        torch.set_num_threads(args.threads)
     models = load_eval_models(args.models, args.detector, args.lane_model, args.fid_model)
+    if args.run is not None:
+        from recondreamer.recon.checkpoint import load_model
+        from recondreamer.recon.render import render_to_directories
+        from recondreamer.scene import load_scene
+
+        render_to_directories(load_model(args.run), load_scene(args.scene), list(zip(args.trajectory, args.renders)))
     document, features = evaluate_scene(args.scene, list(zip(args.trajectory, args.renders)), models, args.min_lidar_points, args.score_threshold)
     features_out = args.features_out or args.out.with_suffix(".features.npz")
     document["settings"]["features_file"] = str(features_out)

@@ -142,9 +142,8 @@ def run_render(args: argparse.Namespace) -> int:
 
     from recondreamer.errors import RecondreamerError
     from recondreamer.recon.checkpoint import RUN_JSON, load_model
-    from recondreamer.recon.render import render_frames, write_frames
+    from recondreamer.recon.render import render_to_directories
     from recondreamer.scene import load_scene
-    from recondreamer.scene.trajectories import trajectory_cam_to_world
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -159,14 +158,5 @@ def run_render(args: argparse.Namespace) -> int:
             raise RecondreamerError(
                 f"{run_json}: records no scene path; pass --scene DIR"
             )
-    scene = load_scene(scene_dir)
-    try:
-        poses = trajectory_cam_to_world(
-            scene.cam_to_world, scene.ego_to_world, args.trajectory
-        )
-    except ValueError as error:
-        raise RecondreamerError(f"--trajectory: {error}") from None
-    images, depths = render_frames(model, scene, poses)
-    write_frames(args.out, images, depths)
-    log.info("rendered %d frames of %s to %s", len(images), args.trajectory, args.out)
+    render_to_directories(model, load_scene(scene_dir), [(args.trajectory, args.out)])
     return 0

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from recondreamer.scene.cameras import pixel_indices, project_points, world_to_camera
 
@@ -105,6 +104,10 @@ def knn_log_scales(points: np.ndarray, neighbours: int = 3) -> np.ndarray:  # (N
     """log of the RMS distance to the nearest neighbours, isotropic (3DGS initialisation)."""
     if len(points) < 2:
         return np.full((len(points), 3), np.log(0.1), dtype=np.float32)
+    # Imported here: scipy.spatial takes 0.2 s to import, and rendering or scoring a trained model
+    # (a short job, 144 of them in the default run) never initialises Gaussians.
+    from scipy.spatial import cKDTree
+
     k = min(neighbours + 1, len(points))
     dist, _ = cKDTree(points).query(points, k=k)
     rms = np.sqrt(np.mean(dist[:, 1:] ** 2, axis=1)).clip(1e-3, None)

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 from PIL import Image
 
+from recondreamer.errors import RecondreamerError
 from recondreamer.io import atomic_directory
 from recondreamer.recon.base import GaussianSceneModel
+from recondreamer.scene.trajectories import trajectory_cam_to_world
+
+log = logging.getLogger(__name__)
 
 
 def render_frames(
@@ -58,3 +64,23 @@ def write_frames(
             if depths is not None:
                 np.save(tmp / f"{t:03d}_depth.npy", depths[t].astype(np.float32))
     return Path(out_dir)
+
+
+def render_to_directories(
+    model: GaussianSceneModel, scene, outputs: Sequence[tuple[str, str | Path]], backend: str = "auto"
+) -> None:
+    """Render each (trajectory name, directory) pair: original, shift@Y, lane_change or file:PATH.
+
+    Every trajectory is resolved before the first frame is rendered, so a bad name leaves no
+    directory written.
+    """
+    poses = []
+    for trajectory, _ in outputs:
+        try:
+            poses.append(trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, trajectory))
+        except ValueError as error:
+            raise RecondreamerError(f"--trajectory {trajectory}: {error}") from None
+    for (trajectory, out_dir), cam_to_world in zip(outputs, poses):
+        images, depths = render_frames(model, scene, cam_to_world, backend)
+        write_frames(out_dir, images, depths)
+        log.info("rendered %d frames of %s to %s", len(images), trajectory, out_dir)

@@ -7,15 +7,20 @@ EVAL_OVERRIDES = " ".join(
 
 
 rule evaluate:
+    # Renders the run along every trajectory, then scores the renders, in one process: torch starts
+    # once per run instead of twice (144 runs in the default DAG). The renders stay for the
+    # qualitative grids, the judge and the study page.
     input:
+        model=lambda wildcards: run_model(wildcards.segment, wildcards.run),
         scene=results("scenes", "{segment}"),
-        renders=lambda wildcards: render_dirs(wildcards.segment, wildcards.run),
         models=eval_model_files(),
     output:
+        renders=[directory(path) for path in expand(results("renders", "{{segment}}", "{{run}}", "{trajectory}"), trajectory=TRAJECTORIES)],
         metrics=results("metrics", "{segment}", "{run}.json"),
         features=results("metrics", "{segment}", "{run}.features.npz"),
     params:
-        renders=lambda wildcards, input: " ".join(f"--renders {d} --trajectory {t}" for d, t in zip(input.renders, TRAJECTORIES)),
+        run=lambda wildcards, input: parent(input.model),
+        renders=lambda wildcards, output: " ".join(f"--renders {d} --trajectory {t}" for d, t in zip(output.renders, TRAJECTORIES)),
         models=lambda wildcards, input: option("--models", parent(input.models[0]) if input.models else None),
         overrides=EVAL_OVERRIDES,
         min_lidar_points=config["evaluation"]["min_lidar_points"],
@@ -26,9 +31,9 @@ rule evaluate:
     benchmark:
         benchmark_file("evaluate", "{segment}/{run}")
     shell:
-        "recondreamer evaluate --scene {input.scene} {params.renders} {params.models} {params.overrides} "
+        "recondreamer evaluate --scene {input.scene} --run {params.run} {params.renders} {params.models} {params.overrides} "
         "--min-lidar-points {params.min_lidar_points} --score-threshold {params.score_threshold} "
-        "--out {output.metrics} --features-out {output.features} > {log} 2>&1"
+        "--out {output.metrics} --features-out {output.features} --threads {threads} > {log} 2>&1"
 
 
 rule judge:

@@ -1,5 +1,5 @@
-# Baseline reconstructions (one per segment and backbone), corpus reconstructions that only feed
-# the restoration pairs, and the renders of every evaluated trajectory of every run.
+# Baseline reconstructions (one per segment and backbone) and the corpus reconstructions that only
+# feed the restoration pairs. Runs are rendered along the evaluated trajectories by `evaluate`.
 
 RECON_OPTIONS = (
     f"--preset {config['recon']['preset']} --seed {config['recon']['seed']} --backend {config['recon']['backend']} "
@@ -43,21 +43,3 @@ rule train_corpus_recon:
     shell:
         "recondreamer train-recon --scene {input.scene} --model {wildcards.backbone} --out {params.run} "
         "{params.options} --threads {threads} > {log} 2>&1"
-
-
-rule render_trajectories:
-    input:
-        model=lambda wildcards: run_model(wildcards.segment, wildcards.run),
-        scene=results("scenes", "{segment}"),
-    output:
-        [directory(path) for path in expand(results("renders", "{{segment}}", "{{run}}", "{trajectory}"), trajectory=TRAJECTORIES)],
-    params:
-        run=lambda wildcards: run_dir(RESULTS, wildcards.segment, wildcards.run),
-        trajectories=TRAJECTORIES,
-    threads: config["threads"]["recon"]
-    log:
-        log_file("render_trajectories", "{segment}/{run}"),
-    benchmark:
-        benchmark_file("render_trajectories", "{segment}/{run}")
-    script:
-        "../scripts/render_trajectories.py"
