@@ -198,7 +198,7 @@ def test_evaluate_with_run_renders_then_scores_like_render_and_evaluate(scene, s
     common = ["evaluate", "--scene", str(scene_dir), "--models", str(tiny_models)]
     pairs = lambda root: [arg for name in trajectories for arg in ("--trajectory", name, "--renders", str(root / name))]  # noqa: E731
     assert main([*common, *pairs(separate), "--out", str(tmp_path / "separate.json")]) == 0
-    assert main([*common, "--run", str(run), "--threads", "1", *pairs(together), "--out", str(tmp_path / "together.json")]) == 0
+    assert main([*common, "--run", str(run), "--device", "cpu", "--threads", "1", *pairs(together), "--out", str(tmp_path / "together.json")]) == 0
     for name in trajectories:
         assert sorted(p.name for p in (together / name).iterdir()) == sorted(p.name for p in (separate / name).iterdir())
         for t in range(scene.num_frames):
@@ -209,6 +209,9 @@ def test_evaluate_with_run_renders_then_scores_like_render_and_evaluate(scene, s
     assert main([*common, "--run", str(run), "--trajectory", "shift@3", "--renders", str(tmp_path / "bad" / "a"),
                  "--trajectory", "sideways", "--renders", str(tmp_path / "bad" / "b"), "--out", str(tmp_path / "bad.json")]) == 1
     assert not (tmp_path / "bad").exists() and not (tmp_path / "bad.json").exists()
+    if not torch.cuda.is_available():  # a device that is not there is named before any work
+        assert main([*common, "--run", str(run), "--device", "cuda", *pairs(tmp_path / "cuda"), "--out", str(tmp_path / "cuda.json")]) == 1
+        assert not (tmp_path / "cuda").exists()
 
 
 def test_fid_through_the_feature_network_grows_with_noise(scene, tiny_models):

@@ -106,6 +106,10 @@ def test_paper_waymo_config_dry_run_job_counts(tmp_path):
     train = [line for line in shell.stdout.splitlines() if re.search(r"recondreamer train-(recon|dd4d|recondreamer) ", line)]
     assert train and all("--backend gsplat --device cuda" in line for line in train)
     assert all("--generated results/paper-waymo/dd4d_generated/" in line for line in train if "train-dd4d" in line)
+    # evaluate renders the runs on the GPU too.
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "config/paper-waymo.yaml", "--until", "evaluate")
+    evaluate = [line for line in shell.stdout.splitlines() if "recondreamer evaluate " in line]
+    assert len(evaluate) == 18 * 8 and all(" --run results/paper-waymo/runs/" in line and " --device cuda " in line for line in evaluate)
 
 
 def test_local_restorer_checkpoint_replaces_training_that_restorer(tmp_path):

@@ -59,6 +59,7 @@ def register(subparsers) -> None:
     p.add_argument("--score-threshold", type=float, default=0.5, help="detector confidence threshold (default 0.5)")
     p.add_argument("--out", required=True, type=Path, help="metrics JSON file to write")
     p.add_argument("--features-out", type=Path, default=None, help="FID feature file (default: OUT with suffix .features.npz)")
+    p.add_argument("--device", default="cpu", help="torch device to render the --run on, e.g. cpu or cuda (default cpu; the metric networks run on the CPU)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.set_defaults(func=_evaluate)
 
@@ -142,18 +143,20 @@ def _evaluate(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.evaluation.evaluate import evaluate_scene, load_eval_models, write_features
     from recondreamer.io import write_json_atomic
+    from recondreamer.restorer.device import resolve_device
 
     if len(args.renders) != len(args.trajectory):
         raise RecondreamerError(f"give one --renders per --trajectory: got {len(args.renders)} --renders and {len(args.trajectory)} --trajectory")
     if args.threads:
         torch.set_num_threads(args.threads)
+    device = resolve_device(args.device, "--device")
     models = load_eval_models(args.models, args.detector, args.lane_model, args.fid_model)
     if args.run is not None:
         from recondreamer.recon.checkpoint import load_model
         from recondreamer.recon.render import render_to_directories
         from recondreamer.scene import load_scene
 
-        render_to_directories(load_model(args.run), load_scene(args.scene), list(zip(args.trajectory, args.renders)))
+        render_to_directories(load_model(args.run).to(device), load_scene(args.scene), list(zip(args.trajectory, args.renders)))
     document, features = evaluate_scene(args.scene, list(zip(args.trajectory, args.renders)), models, args.min_lidar_points, args.score_threshold)
     features_out = args.features_out or args.out.with_suffix(".features.npz")
     document["settings"]["features_file"] = str(features_out)

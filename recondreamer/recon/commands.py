@@ -98,6 +98,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="scene directory (default: the one recorded in the run)",
     )
     render.add_argument(
+        "--device",
+        default="cpu",
+        help="torch device to render on, e.g. cpu or cuda (cuda uses the gsplat backend; default cpu)",
+    )
+    render.add_argument(
         "--threads",
         type=int,
         default=None,
@@ -143,11 +148,13 @@ def run_render(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.recon.checkpoint import RUN_JSON, load_model
     from recondreamer.recon.render import render_to_directories
+    from recondreamer.restorer.device import resolve_device
     from recondreamer.scene import load_scene
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    model = load_model(args.checkpoint or args.run)
+    device = resolve_device(args.device, "--device")
+    model = load_model(args.checkpoint or args.run).to(device)
     scene_dir = args.scene
     if scene_dir is None:
         run_json = Path(args.run) / RUN_JSON

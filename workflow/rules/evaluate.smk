@@ -23,6 +23,7 @@ rule evaluate:
         renders=lambda wildcards, output: " ".join(f"--renders {d} --trajectory {t}" for d, t in zip(output.renders, TRAJECTORIES)),
         models=lambda wildcards, input: option("--models", parent(input.models[0]) if input.models else None),
         overrides=EVAL_OVERRIDES,
+        device=option("--device", config["recon"]["device"]),  # where the run is rendered
         min_lidar_points=config["evaluation"]["min_lidar_points"],
         score_threshold=config["evaluation"]["score_threshold"],
     threads: config["threads"]["evaluate"]
@@ -31,7 +32,7 @@ rule evaluate:
     benchmark:
         benchmark_file("evaluate", "{segment}/{run}")
     shell:
-        "recondreamer evaluate --scene {input.scene} --run {params.run} {params.renders} {params.models} {params.overrides} "
+        "recondreamer evaluate --scene {input.scene} --run {params.run} {params.device} {params.renders} {params.models} {params.overrides} "
         "--min-lidar-points {params.min_lidar_points} --score-threshold {params.score_threshold} "
         "--out {output.metrics} --features-out {output.features} --threads {threads} > {log} 2>&1"
 
