@@ -196,7 +196,10 @@ def test_evaluate_with_run_renders_then_scores_like_render_and_evaluate(scene, s
     for name in trajectories:
         assert main(["render", "--run", str(run), "--scene", str(scene_dir), "--trajectory", name, "--out", str(separate / name)]) == 0
     common = ["evaluate", "--scene", str(scene_dir), "--models", str(tiny_models)]
-    pairs = lambda root: [arg for name in trajectories for arg in ("--trajectory", name, "--renders", str(root / name))]  # noqa: E731
+
+    def pairs(root):
+        return [arg for name in trajectories for arg in ("--trajectory", name, "--renders", str(root / name))]
+
     assert main([*common, *pairs(separate), "--out", str(tmp_path / "separate.json")]) == 0
     assert main([*common, "--run", str(run), "--device", "cpu", "--threads", "1", *pairs(together), "--out", str(tmp_path / "together.json")]) == 0
     for name in trajectories:

@@ -146,6 +146,7 @@ def run_model(segment, run_id):
 
 
 def render_dirs(segment, run_id):
+    """A run's render directories, one per evaluated trajectory (segment and run may be wildcards)."""
     return [str(render_dir(RESULTS, segment, run_id, t)) for t in TRAJECTORIES]
 
 

@@ -15,7 +15,7 @@ rule evaluate:
         scene=results("scenes", "{segment}"),
         models=eval_model_files(),
     output:
-        renders=[directory(path) for path in expand(results("renders", "{{segment}}", "{{run}}", "{trajectory}"), trajectory=TRAJECTORIES)],
+        renders=[directory(path) for path in render_dirs("{segment}", "{run}")],
         metrics=results("metrics", "{segment}", "{run}.json"),
         features=results("metrics", "{segment}", "{run}.features.npz"),
     params:
