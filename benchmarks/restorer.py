@@ -14,7 +14,8 @@ trajectory), restore the clip and print:
 - restore time of a 40-frame clip, wall-clock and process CPU seconds (measured on the first
   clip, scaled to 40 frames); with one thread the CPU seconds are the wall time on an idle core,
   the honest figure when other jobs share the machine;
-- the fine-tuning job's CPU ms per training step and CPU minutes, as recorded in the checkpoint;
+- the fine-tuning job's steps, training-timestep power, CPU ms per step and CPU minutes, as
+  recorded in the checkpoint;
 - the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``.
 
 Pairs whose scene was in a restorer's training set are skipped for that restorer (the checkpoint
@@ -64,7 +65,9 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
     payload = load_checkpoint(path, "restorer")
     trained_on = set(payload.get("training_scenes", []))
     train_ms = payload.get("metrics", {}).get("cpu_ms_per_step", float("nan"))
-    train_minutes = train_ms * payload.get("metrics", {}).get("steps", 0) / 60000.0
+    train_steps = payload.get("metrics", {}).get("steps", 0)
+    train_minutes = train_ms * train_steps / 60000.0
+    timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
     clips = []  # (kind, degraded, gt, structure)
     for file in pair_files:
         content = load_pairs_file(file)
@@ -107,6 +110,8 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
             "flicker_restored": mean([rec["flicker_restored"] for rec in records]),
             "seconds_per_40": seconds_per_40,
             "cpu_seconds_per_40": cpu_seconds_per_40,
+            "train_steps": int(train_steps),
+            "timestep_power": timestep_power,
             "train_ms": train_ms,
             "train_minutes": train_minutes,
         })
@@ -145,7 +150,7 @@ def main() -> None:
     header = (
         f"{'backbone':10s} {'space':>8s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
         f"{'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick rest':>10s} {'s / 40 fr':>9s} {'cpu s / 40':>10s} "
-        f"{'train CPU ms/step':>17s} {'train CPU min':>13s}"
+        f"{'train steps':>11s} {'t power':>7s} {'train CPU ms/step':>17s} {'train CPU min':>13s}"
     )
     print(f"threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
     print(header)
@@ -155,7 +160,7 @@ def main() -> None:
             f"{row['arch']:10s} {row['space']:>8s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
             f"{row['psnr_restored']:9.2f} {row['gain']:7.2f} {row['gain_orig']:6.2f} {row['gain_novel']:6.2f} "
             f"{row['flicker_degraded']:9.2f} {row['flicker_restored']:10.2f} {row['seconds_per_40']:9.1f} "
-            f"{row['cpu_seconds_per_40']:10.1f} {row['train_ms']:17.0f} {row['train_minutes']:13.1f}"
+            f"{row['cpu_seconds_per_40']:10.1f} {row['train_steps']:11d} {row['timestep_power']:7g} {row['train_ms']:17.0f} {row['train_minutes']:13.1f}"
         )
 
 

@@ -55,11 +55,11 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
     # Residual target space by default, its scale measured on the pairs (blur leaves a non-zero residual).
     assert restorer["config"]["diffusion"]["target_space"] == "residual" and restorer["config"]["diffusion"]["residual_scale"] > 0.0
 
-    # Without options a restorer gets the measured recipe: residual space, timestep power 3, 1 step, residual decoding.
+    # Without options a restorer gets the measured recipe: residual space, timestep power 50, 1 step, residual decoding.
     assert main(["train-restorer", "--arch", "dd2", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
                  "--out", str(tmp_path / "r_default.pt"), *train]) == 0
     default = load_checkpoint(tmp_path / "r_default.pt", "restorer")["config"]
-    assert default["train"]["timestep_power"] == 3.0 and default["diffusion"]["target_space"] == "residual"
+    assert default["train"]["timestep_power"] == 50.0 and default["diffusion"]["target_space"] == "residual"
     assert default["restore"]["sample_steps"] == 1 and default["restore"]["residual_decoding"] is True
 
     np.save(tmp_path / "renders.npy", _blur(gt))

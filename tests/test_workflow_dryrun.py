@@ -193,3 +193,19 @@ def test_restorer_steps_per_backbone_override_the_common_steps(tmp_path):
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "steps.yaml", "--until", "train_restorer").stdout
     steps = dict(re.findall(r"train-restorer --arch (\w+) .*?--steps (\d+)", shell))
     assert steps == {"sd": "20", "svd": "35", "dd2": "20", "dd2_mask": "20"}
+
+
+def test_restorer_timestep_power_reaches_every_fine_tuning_and_only_when_set(tmp_path):
+    root = workflow_copy(tmp_path)
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    assert "timestep_power" not in config["restorer"]
+    quick_shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "config/quick.yaml", "--until", "train_restorer").stdout
+    assert "train-restorer" in quick_shell and "--timestep-power" not in quick_shell
+    # The default config pins the power its documented tables were made with.
+    default_shell = snakemake(root, "-n", "--printshellcmds", "--until", "train_restorer").stdout
+    assert set(re.findall(r"train-restorer --arch \w+ .*?--timestep-power (\S+)", default_shell)) == {"3"}
+    config["restorer"]["timestep_power"] = 50
+    (root / "power.yaml").write_text(yaml.safe_dump(config))
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "power.yaml", "--until", "train_restorer").stdout
+    powers = dict(re.findall(r"train-restorer --arch (\w+) .*?--timestep-power (\S+)", shell))
+    assert powers == {"sd": "50", "svd": "50", "dd2": "50", "dd2_mask": "50"}

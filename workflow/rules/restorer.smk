@@ -52,7 +52,12 @@ rule train_restorer:
         steps=lambda wildcards: option("--steps", config["restorer"]["backbone_steps"].get(wildcards.restorer) or config["restorer"]["steps"]),
         options=" ".join(
             option(flag, config["restorer"][key])
-            for flag, key in (("--batch-size", "batch_size"), ("--window", "window"), ("--seed", "seed"))
+            for flag, key in (
+                ("--batch-size", "batch_size"),
+                ("--window", "window"),
+                ("--timestep-power", "timestep_power"),
+                ("--seed", "seed"),
+            )
         )
         + RESTORER_DEVICE,
         mask=lambda wildcards: option("--mask-probability", config["restorer"]["mask_probability"]) if wildcards.restorer == "dd2_mask" else "",
