@@ -64,8 +64,9 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
     restorer = load_restorer(path)
     payload = load_checkpoint(path, "restorer")
     trained_on = set(payload.get("training_scenes", []))
-    train_ms = payload.get("metrics", {}).get("cpu_ms_per_step", float("nan"))
-    train_steps = payload.get("metrics", {}).get("steps", 0)
+    metrics = payload.get("metrics", {})
+    train_ms = metrics.get("cpu_ms_per_step", float("nan"))
+    train_steps = metrics.get("steps", 0)
     train_minutes = train_ms * train_steps / 60000.0
     timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
     clips = []  # (kind, degraded, gt, structure)
