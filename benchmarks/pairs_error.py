@@ -9,11 +9,14 @@ clip's PSNR against its ground truth and:
   structure maps (what the dd2 restorers are told);
 - ``coarse oracle dB``: the gain of a perfect correction of everything coarser than 8x8 pixels
   (the error minus its 8x8 block means is what remains): an upper bound for any restorer that only
-  fixes colour and blur at that scale.
+  fixes colour and blur at that scale;
+- with ``--autoencoder CKPT``, ``latent oracle dB``: the gain of a restorer whose restored latent is
+  exactly the ground truth's, ``E(gt)``, under residual decoding (``input + D(E(gt)) - D(E(input))``,
+  what ``restore_clip`` returns): the ceiling of any latent restorer with that autoencoder.
 
 Example::
 
-    python benchmarks/pairs_error.py --pairs results/restorer-dev/pairs-heldout
+    python benchmarks/pairs_error.py --pairs results/restorer-dev/pairs-heldout [--autoencoder results/restorer-dev/ae8_5000.pt]
 """
 
 from __future__ import annotations
@@ -51,13 +54,33 @@ def error_structure(gt: np.ndarray, degraded: np.ndarray, structure: np.ndarray,
     }
 
 
+def latent_oracle_db(autoencoder, gt: np.ndarray, degraded: np.ndarray) -> float:
+    """Gain (dB) of residual-decoding the ground truth's own latents onto the degraded clip (T,H,W,3) uint8."""
+    from recondreamer.restorer.autoencoder import encode_frames
+    from recondreamer.restorer.inference import residual_decode
+
+    oracle = residual_decode(autoencoder, degraded, encode_frames(autoencoder, gt), encode_frames(autoencoder, degraded))
+    return psnr(oracle, gt) - psnr(degraded, gt)
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    return float(10.0 * np.log10(255.0**2 / np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", nargs="+", required=True, help="restoration-pairs directories or .npz files")
+    parser.add_argument("--autoencoder", default=None, help="autoencoder checkpoint: adds the latent-oracle column")
     args = parser.parse_args()
     from recondreamer.restorer.data import find_pairs_files, load_pairs_file
 
+    autoencoder = None
+    if args.autoencoder:
+        from recondreamer.restorer.models import load_autoencoder
+
+        autoencoder = load_autoencoder(args.autoencoder)[0].eval()
     header = f"{'pairs file':44s} {'stage':>5s} {'PSNR':>6s} {'edge px':>7s} {'edge err':>8s} {'line px':>7s} {'line err':>8s} {'coarse oracle dB':>16s}"
+    header += f" {'latent oracle dB':>16s}" if autoencoder is not None else ""
     print(header)
     print("-" * len(header))
     for path in find_pairs_files(args.pairs):
@@ -68,6 +91,7 @@ def main() -> None:
             print(
                 f"{path.name:44s} {int(content['stages'][k]):5d} {row['psnr']:6.2f} {row['edge_pixels']:7.2f} {row['edge_error']:8.2f} "
                 f"{row['line_pixels']:7.2f} {row['line_error']:8.2f} {row['coarse_oracle_db']:16.2f}"
+                + (f" {latent_oracle_db(autoencoder, content['gt'], content['degraded'][k]):16.2f}" if autoencoder is not None else "")
             )
 
 

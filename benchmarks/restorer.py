@@ -15,7 +15,8 @@ trajectory), restore the clip and print:
   clip, scaled to 40 frames); with one thread the CPU seconds are the wall time on an idle core,
   the honest figure when other jobs share the machine;
 - the fine-tuning job's steps, training-timestep power, CPU ms per step and CPU minutes, as
-  recorded in the checkpoint;
+  recorded in the checkpoint (steps and minutes summed over the jobs of a restorer trained further
+  from another with ``--init-restorer``; ms per step of the last job);
 - the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``.
 
 Pairs whose scene was in a restorer's training set are skipped for that restorer (the checkpoint
@@ -66,8 +67,9 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
     trained_on = set(payload.get("training_scenes", []))
     metrics = payload.get("metrics", {})
     train_ms = metrics.get("cpu_ms_per_step", float("nan"))
-    train_steps = metrics.get("steps", 0)
-    train_minutes = train_ms * train_steps / 60000.0
+    # A restorer trained further from another (--init-restorer) counts both jobs.
+    train_steps = metrics.get("total_steps", metrics.get("steps", 0))
+    train_minutes = metrics.get("total_cpu_minutes", train_ms * metrics.get("steps", 0) / 60000.0)
     timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
     clips = []  # (kind, degraded, gt, structure)
     for file in pair_files:

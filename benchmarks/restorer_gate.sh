@@ -11,7 +11,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh
+# Usage: benchmarks/restorer_gate.sh   (its last part adds the session-8 runs under results/restorer-dev/s8/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -85,3 +85,19 @@ run "$OUT/restorer_dd2_mask_8000.pt" "$OUT/restorer_dd2_mask_8000.log" $RC train
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
   --restorer sd="$OUT/restorer_sd.pt" svd="$OUT/restorer_svd.pt" dd2="$OUT/restorer_dd2.pt" dd2_mask="$OUT/restorer_dd2_mask.pt" \
   dd2_mask="$OUT/restorer_dd2_mask_8000.pt" | tee "$OUT/gate_table.txt"
+
+# Session 8 (docs/restorer.md, "Results (session 8)"): the latent oracle of the held-out pairs, a
+# dd2_mask restorer on whole latents for 3000 steps, one with the image-space loss, and the
+# 8000-step restorer trained further on whole latents (--init-restorer).
+S8=$DEV/s8
+mkdir -p "$S8"
+python benchmarks/pairs_error.py --pairs "$DEV/pairs-heldout" --autoencoder "$AE" | tee "$S8/pairs_error_oracle.txt"
+run "$S8/whole_3000.pt" "$S8/whole_3000.log" $RC train-restorer --arch dd2_mask --world-model "$WM/wm_dd2.pt" \
+  --pairs $PAIRS --out "$S8/whole_3000.pt" --steps 3000 --crop 0 0 $RESTORER_OPTIONS
+run "$S8/px50_1000.pt" "$S8/px50_1000.log" $RC train-restorer --arch dd2_mask --world-model "$WM/wm_dd2.pt" \
+  --pairs $PAIRS --out "$S8/px50_1000.pt" --steps 1000 --pixel-loss-weight 50 $RESTORER_OPTIONS
+run "$S8/from8000_whole_1500.pt" "$S8/from8000_whole_1500.log" $RC train-restorer --arch dd2_mask --world-model "$WM/wm_dd2.pt" \
+  --init-restorer "$OUT/restorer_dd2_mask_8000.pt" --pairs $PAIRS --out "$S8/from8000_whole_1500.pt" --steps 1500 --crop 0 0 \
+  --learning-rate 5e-4 $RESTORER_OPTIONS
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S8/px50_1000.pt" dd2_mask="$S8/whole_3000.pt" dd2_mask="$S8/from8000_whole_1500.pt" | tee "$S8/gate_table.txt"

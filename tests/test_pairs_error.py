@@ -42,3 +42,22 @@ def test_coarse_oracle_gain_counts_only_what_8x8_block_means_cannot_fix():
     expected = 10 * np.log10(((offset + fine) ** 2).mean() / fine_part.mean())
     assert row["coarse_oracle_db"] == pytest.approx(expected, rel=1e-9)
     assert row["psnr"] == pytest.approx(-10 * np.log10((((offset + fine) / 255.0) ** 2).mean()))
+
+
+def test_latent_oracle_is_what_restore_clip_returns_for_a_restorer_that_outputs_the_truth():
+    import torch
+
+    from recondreamer.restorer.autoencoder import Autoencoder, decode_latents, encode_frames
+    from recondreamer.restorer.config import AutoencoderConfig
+    from recondreamer.restorer.inference import residual_decode
+
+    torch.manual_seed(0)
+    autoencoder = Autoencoder(AutoencoderConfig(hidden_channels=(8, 8, 8))).eval()
+    gt, _ = _clip()
+    degraded = (gt.astype(int) + np.random.default_rng(1).integers(-30, 31, size=gt.shape)).clip(0, 255).astype(np.uint8)
+    change = decode_latents(autoencoder, encode_frames(autoencoder, gt)).astype(int) - decode_latents(autoencoder, encode_frames(autoencoder, degraded))
+    oracle = np.clip(degraded + change, 0, 255)
+    expected = pairs_error.psnr(oracle, gt) - pairs_error.psnr(degraded, gt)
+    assert pairs_error.latent_oracle_db(autoencoder, gt, degraded) == pytest.approx(expected)
+    # A clip that is already the truth gets the zero change: the oracle leaves it exactly as it is.
+    assert np.array_equal(residual_decode(autoencoder, gt, encode_frames(autoencoder, gt), encode_frames(autoencoder, gt)), gt)

@@ -22,7 +22,7 @@ from recondreamer.restorer.config import (
 )
 from recondreamer.restorer.data import Sequence
 from recondreamer.restorer.device import module_device, resolve_device, tensors_to_cpu
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss
+from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
 from recondreamer.restorer.inference import load_restorer, restore_clip
 from recondreamer.restorer.models import (
     GenerativeModel,
@@ -136,7 +136,7 @@ def test_diffusion_loss_draws_timesteps_then_noise_from_the_cpu_generator():
         return 0.5 * noisy + timesteps.float().reshape(-1, 1, 1, 1, 1) / 1000.0
 
     for power in (1.0, 3.0):
-        loss = diffusion_loss(model_fn, schedule, x0, torch.Generator().manual_seed(7), power)
+        loss = diffusion_loss_and_estimate(model_fn, schedule, x0, torch.Generator().manual_seed(7), power)[0]
         twin = torch.Generator().manual_seed(7)
         if power == 1.0:
             timesteps = torch.randint(0, 1000, (3,), generator=twin)

@@ -10,7 +10,7 @@ from recondreamer.restorer.diffusion import (
     PREDICTIONS,
     NoiseSchedule,
     ddim_sample,
-    diffusion_loss,
+    diffusion_loss_and_estimate,
 )
 
 
@@ -84,5 +84,5 @@ def test_diffusion_loss_is_zero_for_the_oracle_and_positive_otherwise(prediction
         eps = (x_t - alpha_bar.sqrt() * x0) / (1 - alpha_bar).sqrt()
         return s.training_target(x0, eps, timesteps)
 
-    assert diffusion_loss(oracle, s, x0, torch.Generator().manual_seed(6)).item() < 1e-6
-    assert diffusion_loss(lambda x_t, t: torch.zeros_like(x_t), s, x0, torch.Generator().manual_seed(6)).item() > 0.1
+    assert diffusion_loss_and_estimate(oracle, s, x0, torch.Generator().manual_seed(6))[0].item() < 1e-6
+    assert diffusion_loss_and_estimate(lambda x_t, t: torch.zeros_like(x_t), s, x0, torch.Generator().manual_seed(6))[0].item() > 0.1

@@ -6,7 +6,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-import torch
 
 from recondreamer.restorer.config import MaskConfig
 from recondreamer.restorer.masks import mask_regions, sample_clip_masks, sample_keep_mask, vanishing_point

@@ -12,7 +12,7 @@ from test_restorer_models import H, W, tiny_model
 from recondreamer.restorer.autoencoder import decode_latents, encode_frames
 from recondreamer.restorer.config import DiffusionConfig
 from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss
+from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
 from recondreamer.restorer.inference import restore_clip
 from recondreamer.restorer.training import residual_scale, sample_batch, unet_loss
 
@@ -107,9 +107,9 @@ def test_residual_training_loss_targets_the_scaled_residual():
         return restorer.unet(noisy, timesteps, batch["reference"], degraded=batch["degraded"])
 
     x0 = (batch["target"] - batch["degraded"]) / 0.7
-    expected = diffusion_loss(model_fn, restorer.schedule, x0, torch.Generator().manual_seed(4), timestep_power=3.0)
+    expected = diffusion_loss_and_estimate(model_fn, restorer.schedule, x0, torch.Generator().manual_seed(4), timestep_power=3.0)[0]
     assert torch.allclose(got, expected)
-    clean = diffusion_loss(model_fn, restorer.schedule, batch["target"], torch.Generator().manual_seed(4), timestep_power=3.0)
+    clean = diffusion_loss_and_estimate(model_fn, restorer.schedule, batch["target"], torch.Generator().manual_seed(4), timestep_power=3.0)[0]
     assert not torch.allclose(got, clean)
 
 

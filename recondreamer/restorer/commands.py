@@ -68,6 +68,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="what the restorer diffuses: residual = (clean - degraded) latents, so a zero output is the identity "
         "(default); clean = clean latents, as the world model",
     )
+    p.add_argument(
+        "--init-restorer", default=None, metavar="CKPT",
+        help="start from this restorer's weights instead of the world model's, to train it further (same arch, UNet "
+        "and autoencoder; default: the world model)",
+    )
+    p.add_argument(
+        "--pixel-loss-weight", type=float, default=None,
+        help="weight of an image-space loss (MSE of the decoded one-step sample against ground truth, [-1,1] pixel "
+        "units) added to the diffusion loss; 0 = diffusion loss only (default 0)",
+    )
     _add_train_options(p)
     _add_threads_option(p)
     _add_device_option(p)
@@ -239,14 +249,21 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     from recondreamer.restorer.inference import load_world_model
     from recondreamer.restorer.training import train_restorer
 
+    if args.pixel_loss_weight is not None and args.pixel_loss_weight < 0.0:
+        raise RecondreamerError(f"--pixel-loss-weight must be >= 0, got {args.pixel_loss_weight}")
     _set_threads(args)
     device = _device(args)
     world = load_world_model(args.world_model, device)
     masks = None
     if args.arch == "dd2_mask":
         masks = MaskConfig() if args.mask_probability is None else dataclasses.replace(MaskConfig(), probability=args.mask_probability)
+    train = _train_config(args, world.train_config)
+    if args.timestep_power is None:
+        train = dataclasses.replace(train, timestep_power=RESTORER_TIMESTEP_POWER)
+    train = dataclasses.replace(train, pixel_loss_weight=args.pixel_loss_weight or 0.0)
     files = find_pairs_files(args.pairs)
-    sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=masks is not None)
+    keep_frames = masks is not None or train.pixel_loss_weight > 0.0
+    sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=keep_frames)
     restore = RestoreConfig(sample_steps=RESTORER_SAMPLE_STEPS, residual_decoding=RESTORER_RESIDUAL_DECODING)
     overrides = {"sample_steps": args.sample_steps, "strength": args.strength}
     if args.residual_decoding is not None:
@@ -254,10 +271,7 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     restore = dataclasses.replace(restore, **{k: v for k, v in overrides.items() if v is not None})
     if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1:
         raise RecondreamerError(f"--strength must be in (0, 1] and --sample-steps >= 1, got {restore.strength} and {restore.sample_steps}")
-    train = _train_config(args, world.train_config)
-    if args.timestep_power is None:
-        train = dataclasses.replace(train, timestep_power=RESTORER_TIMESTEP_POWER)
-    stats = train_restorer(world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device)
+    stats = train_restorer(world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device, args.init_restorer)
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 

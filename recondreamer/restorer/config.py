@@ -128,6 +128,9 @@ class TrainConfig:
     # Training timesteps have density proportional to t^(power - 1): 1 = uniform (pretraining);
     # > 1 favours the noisy steps where a restorer's few-step sampler spends its effort.
     timestep_power: float = 1.0
+    # Restorers: weight of an image-space term beside the diffusion loss, the MSE of the frames the
+    # one-step sample decodes to (training.image_space_loss); 0 = the diffusion loss alone.
+    pixel_loss_weight: float = 0.0
     checkpoint_every: int = 200
     log_every: int = 50
     seed: int = 0

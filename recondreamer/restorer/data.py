@@ -73,7 +73,8 @@ class Sequence:
     reference: torch.Tensor  # (T,c,h,w) latents of the original-trajectory frames
     structure: np.ndarray | None  # (T,S,H,W) uint8 structure maps in the target camera
     degraded: torch.Tensor | None = None  # (K,T,c,h,w) latents of degraded renders (pairs)
-    degraded_frames: np.ndarray | None = None  # (K,T,H,W,3) uint8, kept where masks are applied
+    degraded_frames: np.ndarray | None = None  # (K,T,H,W,3) uint8, kept for masks and image-space losses
+    target_frames: np.ndarray | None = None  # (T,H,W,3) uint8, kept for image-space losses
     sky_masks: np.ndarray | None = None  # (T,H,W) bool
     vanishing: np.ndarray | None = None  # (T,2)
 
@@ -204,7 +205,8 @@ def pair_latents(path: Path, content: dict, autoencoder: Autoencoder, digest: st
 
 
 def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_structure: bool, keep_frames: bool) -> list[Sequence]:
-    """Restoration pairs as sequences; ``keep_frames`` keeps degraded pixels for masking."""
+    """Restoration pairs as sequences; ``keep_frames`` keeps the degraded and ground-truth pixels
+    (for masking and for an image-space loss)."""
     sequences = []
     digest = autoencoder_digest(autoencoder)
     for path in files:
@@ -220,6 +222,7 @@ def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_struct
                 structure=content["structure"] if with_structure else None,
                 degraded=degraded_latents,
                 degraded_frames=degraded if keep_frames else None,
+                target_frames=content["gt"] if keep_frames else None,
                 sky_masks=content["sky"].astype(bool) if "sky" in content else None,
                 vanishing=content["vanishing"],
             )

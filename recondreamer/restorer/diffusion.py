@@ -140,15 +140,17 @@ class NoiseSchedule:
         return sorted(set(steps), reverse=True)
 
 
-def diffusion_loss(
+def diffusion_loss_and_estimate(
     model_fn: Callable[[torch.Tensor, torch.Tensor], torch.Tensor],
     schedule: NoiseSchedule,
     x0: torch.Tensor,  # (B,...) in the schedule's target space
     generator: torch.Generator | None = None,
     timestep_power: float = 1.0,
-) -> torch.Tensor:
-    """Mean squared error between the network's output and its target at random steps
-    (density of the steps proportional to t^(timestep_power - 1))."""
+) -> tuple[torch.Tensor, torch.Tensor]:  # loss (), x0 estimate (B,...) differentiable
+    """Mean squared error between the network's output and its target at random steps (density
+    of the steps proportional to t^(timestep_power - 1)), and the x0 estimate the output implies
+    at those steps: what a one-step sampler would return, for losses on the sample itself
+    (image-space terms)."""
     b = x0.shape[0]
     if timestep_power == 1.0:  # the integer sampler of earlier checkpoints, so their runs reproduce
         timesteps = torch.randint(0, schedule.num_timesteps, (b,), generator=generator)
@@ -158,7 +160,9 @@ def diffusion_loss(
     timesteps = timesteps.to(x0.device)
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     noisy = schedule.add_noise(x0, noise, timesteps)
-    return torch.mean((model_fn(noisy, timesteps) - schedule.training_target(x0, noise, timesteps)) ** 2)
+    output = model_fn(noisy, timesteps)
+    loss = torch.mean((output - schedule.training_target(x0, noise, timesteps)) ** 2)
+    return loss, schedule.split_prediction(noisy, output, timesteps)[0]
 
 
 @torch.no_grad()

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import RecondreamerError
-from recondreamer.restorer.autoencoder import decode_latents, encode_frames
+from recondreamer.restorer.autoencoder import Autoencoder, decode_latents, encode_frames
 from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
 from recondreamer.restorer.diffusion import ddim_sample
 from recondreamer.restorer.models import GenerativeModel, load_generative_model
@@ -181,10 +181,19 @@ def restore_clip(
         num_steps or config.sample_steps, window or config.window, config.overlap if overlap is None else overlap,
         config.strength if strength is None else strength, config.seed if seed is None else seed,
     )
-    restored = decode_latents(restorer.autoencoder, latents)
     if not (config.residual_decoding if residual_decoding is None else residual_decoding):
-        return restored
-    change = restored.astype(np.int16) - decode_latents(restorer.autoencoder, degraded_latents).astype(np.int16)
+        return decode_latents(restorer.autoencoder, latents)
+    return residual_decode(restorer.autoencoder, frames, latents, degraded_latents)
+
+
+def residual_decode(
+    autoencoder: Autoencoder,
+    frames: np.ndarray,  # (T,H,W,3) uint8 the restorer's input
+    latents: torch.Tensor,  # (T,c,h,w) restored latents
+    frame_latents: torch.Tensor,  # (T,c,h,w) E(frames)
+) -> np.ndarray:  # (T,H,W,3) uint8
+    """The input plus the decoded change, ``frames + D(latents) - D(E(frames))``, clipped to uint8."""
+    change = decode_latents(autoencoder, latents).astype(np.int16) - decode_latents(autoencoder, frame_latents).astype(np.int16)
     return np.clip(frames.astype(np.int16) + change, 0, 255).astype(np.uint8)
 
 

@@ -33,7 +33,7 @@ from recondreamer.restorer.config import (
 )
 from recondreamer.restorer.data import Sequence
 from recondreamer.restorer.device import module_device
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss
+from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
 from recondreamer.restorer.masks import sample_clip_masks
 from recondreamer.restorer.models import (
     GenerativeModel,
@@ -251,6 +251,7 @@ def sample_batch(
     with_degraded: bool,
     masks: MaskConfig | None = None,
     autoencoder: Autoencoder | None = None,
+    with_pixels: bool = False,
 ) -> dict:
     """A batch of random clips, randomly cropped in latent space.
 
@@ -259,49 +260,64 @@ def sample_batch(
     models, and the degraded frame at the clip start for restorers: a restorer must not see the
     ground truth it is asked to produce, and at inference its input is all it has. With
     ``masks``, the degraded frames are masked in pixel space and re-encoded (``z = E(V * M)``).
+    With ``with_pixels`` (restorers), also target_pixels and degraded_pixels (B,T,3,h*f,w*f) in
+    [-1,1]: the same crop in pixels, the degraded one as encoded (masked where masks fell).
     """
     window = min(train.window, min(s.num_frames for s in sequences))
     latent_h, latent_w = sequences[0].target.shape[-2:]
     crop_h = min(train.crop[0] or latent_h, latent_h)
     crop_w = min(train.crop[1] or latent_w, latent_w)
     f = downsample_factor
+    if with_pixels and any(s.target_frames is None or s.degraded_frames is None for s in sequences):
+        raise RecondreamerError("an image-space loss needs the pairs' pixels: load the pairs with keep_frames=True")
     targets, references, structures, degraded = [], [], [], []
+    target_pixels, degraded_pixels = [], []
     for _ in range(train.batch_size):
         seq = sequences[rng.integers(len(sequences))]
         start = int(rng.integers(0, seq.num_frames - window + 1))
         frames = slice(start, start + window)
         y, x = int(rng.integers(0, latent_h - crop_h + 1)), int(rng.integers(0, latent_w - crop_w + 1))
         rows, cols = slice(y, y + crop_h), slice(x, x + crop_w)
+        pixel_rows, pixel_cols = slice(y * f, (y + crop_h) * f), slice(x * f, (x + crop_w) * f)
         targets.append(seq.target[frames, :, rows, cols])
         if not with_degraded:
             references.append(seq.reference[start, :, rows, cols])
         if with_structure:
-            pixel_rows, pixel_cols = slice(y * f, (y + crop_h) * f), slice(x * f, (x + crop_w) * f)
             structures.append(torch.from_numpy(seq.structure[frames, :, pixel_rows, pixel_cols]))
         if with_degraded:
             stage = int(rng.integers(seq.degraded.shape[0]))
+            latents = seq.degraded[stage, frames]  # (T,c,H/f,W/f)
+            pixels = None if seq.degraded_frames is None else seq.degraded_frames[stage, frames]  # (T,H,W,3)
             if masks is not None:
-                pixels = seq.degraded_frames[stage, frames]  # (T,H,W,3)
                 keep = sample_clip_masks(
                     window, pixels.shape[1], pixels.shape[2], masks, rng, seq.vanishing[frames],
                     None if seq.sky_masks is None else seq.sky_masks[frames],
                 )
-                latents = seq.degraded[stage, frames].clone()
                 masked = np.flatnonzero(~keep.all(axis=(1, 2)))  # frames with a mask: re-encode only those
                 if masked.size:
+                    pixels = pixels.copy()
+                    pixels[masked] = pixels[masked] * keep[masked, ..., None]
+                    latents = latents.clone()
                     with torch.no_grad():
-                        masked_frames = frames_to_tensor(pixels[masked] * keep[masked, ..., None]).to(module_device(autoencoder))
-                        latents[masked] = autoencoder.encode(masked_frames).cpu()
-                degraded.append(latents[:, :, rows, cols])
-            else:
-                degraded.append(seq.degraded[stage, frames, :, rows, cols])
+                        latents[masked] = autoencoder.encode(frames_to_tensor(pixels[masked]).to(module_device(autoencoder))).cpu()
+            degraded.append(latents[:, :, rows, cols])
             references.append(degraded[-1][0])
-    return {
+            if with_pixels:
+                target_pixels.append(frames_to_tensor(seq.target_frames[frames, pixel_rows, pixel_cols]))
+                degraded_pixels.append(frames_to_tensor(pixels[:, pixel_rows, pixel_cols]))
+    batch = {
         "target": torch.stack(targets),
         "reference": torch.stack(references),
         "structure": torch.stack(structures).float() / 255.0 if with_structure else None,
         "degraded": torch.stack(degraded) if with_degraded else None,
     }
+    if with_pixels:
+        batch["target_pixels"], batch["degraded_pixels"] = torch.stack(target_pixels), torch.stack(degraded_pixels)
+    return batch
+
+
+def _batch_on(batch: dict, device: torch.device) -> dict:
+    return {name: None if value is None else value.to(device) for name, value in batch.items()}
 
 
 def unet_loss(
@@ -310,14 +326,64 @@ def unet_loss(
     """The diffusion loss (MSE to the schedule's prediction target at a random step per clip) of
     one batch, in the schedule's target space (residual restorers: relative to the degraded clip).
     The batch (built on the CPU) is moved to the UNet's device."""
-    device = module_device(unet)
-    batch = {name: None if value is None else value.to(device) for name, value in batch.items()}
+    return unet_loss_and_estimate(unet, schedule, batch, generator, timestep_power)[0]
+
+
+def unet_loss_and_estimate(
+    unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0
+) -> tuple[torch.Tensor, torch.Tensor]:  # loss (), x0 estimate (B,T,c,h,w) in the target space
+    """``unet_loss`` and the x0 estimate of the drawn steps (``diffusion_loss_and_estimate``)."""
+    batch = _batch_on(batch, module_device(unet))
 
     def model_fn(noisy: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
         return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])
 
     x0 = schedule.to_diffusion_space(batch["target"], batch["degraded"])
-    return diffusion_loss(model_fn, schedule, x0, generator, timestep_power)
+    return diffusion_loss_and_estimate(model_fn, schedule, x0, generator, timestep_power)
+
+
+def image_space_loss(
+    autoencoder: Autoencoder,
+    schedule: NoiseSchedule,
+    estimate: torch.Tensor,  # (B,T,c,h,w) x0 estimate in the schedule's target space
+    batch: dict,  # from sample_batch(..., with_pixels=True)
+    residual_decoding: bool,
+) -> torch.Tensor:
+    """Mean squared error, in [-1,1] pixel units, between ground truth and the frames a restorer
+    returns for this estimate: the decoded latent, or with residual decoding the degraded pixels
+    plus the decoded change ``D(z) - D(E(degraded))`` (what ``inference.restore_clip`` outputs).
+
+    The diffusion loss weighs every latent channel alike; this term weighs the latent error by
+    what the (frozen) decoder makes of it, i.e. by its effect on the restored frames' PSNR.
+    Gradients flow through the decoder into the estimate only.
+    """
+    batch = _batch_on(batch, estimate.device)
+    latents = schedule.from_diffusion_space(estimate, batch["degraded"]).flatten(0, 1)  # (B*T,c,h,w)
+    decoded = autoencoder.decode(latents)  # (B*T,3,H,W)
+    if residual_decoding:
+        with torch.no_grad():
+            base = autoencoder.decode(batch["degraded"].flatten(0, 1))
+        decoded = batch["degraded_pixels"].flatten(0, 1) + decoded - base
+    return torch.mean((decoded - batch["target_pixels"].flatten(0, 1)) ** 2)
+
+
+def initial_restorer_payload(
+    path: str | os.PathLike, arch: str, unet_config: UNetConfig, autoencoder: Autoencoder, target_space: str
+) -> dict:
+    """A restorer checkpoint a fine-tuning starts from, checked to fit the job: same arch and UNet
+    shape, built on the same autoencoder (its latents are the job's) and the same target space."""
+    from recondreamer.restorer.data import autoencoder_digest
+    from recondreamer.restorer.models import model_from_payload
+
+    payload = load_checkpoint(path, "restorer")
+    initial = model_from_payload(payload)
+    if initial.arch != arch or initial.unet_config != unet_config:
+        raise CheckpointError(f"{path}: a {initial.arch} restorer of UNet {initial.unet_config} cannot start a {arch} restorer of UNet {unet_config}")
+    if autoencoder_digest(initial.autoencoder) != autoencoder_digest(autoencoder):
+        raise CheckpointError(f"{path}: restorer built on another autoencoder than the world model's")
+    if initial.diffusion_config.target_space != target_space:
+        raise CheckpointError(f"{path}: restorer diffuses in the {initial.diffusion_config.target_space} space, this job in the {target_space} space")
+    return payload
 
 
 def residual_scale(sequences: list[Sequence]) -> float:
@@ -379,16 +445,26 @@ def train_restorer(
     world_model_path: str,
     target_space: str = "residual",
     device: torch.device | str = "cpu",
+    init_from: str | os.PathLike | None = None,
 ) -> dict:
     """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition.
 
     ``target_space`` "residual" diffuses (clean - degraded) / scale with the scale measured on
     the pairs (``diffusion.py``); "clean" diffuses clean latents as the world model does.
     Trains on ``device``, where ``world`` (whose autoencoder re-encodes masked frames) is moved.
+    ``init_from`` starts from a restorer checkpoint's weights instead of the world model's (to
+    train a restorer further, e.g. with other crops or losses); the metrics then also hold the
+    total steps and CPU minutes of both jobs.
     """
     torch.manual_seed(train.seed)
     world.to(device)
-    unet = restorer_unet_from_world_model(world, arch).to(device)
+    unet = restorer_unet_from_world_model(world, arch)
+    initial_metrics = None
+    if init_from is not None:
+        initial = initial_restorer_payload(init_from, arch, unet.config, world.autoencoder, target_space)
+        unet.load_state_dict(initial["state"])
+        initial_metrics = initial.get("metrics", {})
+    unet = unet.to(device)
     scale = residual_scale(sequences) if target_space == "residual" else 1.0
     diffusion_config = dataclasses.replace(world.diffusion_config, target_space=target_space, residual_scale=scale)
     schedule = NoiseSchedule(diffusion_config)
@@ -403,19 +479,38 @@ def train_restorer(
         arch, count_parameters(unet), len(sequences), target_space, scale, masks,
     )
 
+    image_weight = train.pixel_loss_weight
+    world.autoencoder.requires_grad_(False)  # frozen: the image-space loss differentiates through its decoder only
+
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
         batch = sample_batch(
-            sequences, rng, train, unet.config.downsample_factor, unet.config.uses_structure, True, masks, world.autoencoder
+            sequences, rng, train, unet.config.downsample_factor, unet.config.uses_structure, True, masks, world.autoencoder,
+            with_pixels=image_weight > 0.0,
         )
-        return unet_loss(unet, schedule, batch, generator, train.timestep_power)
+        loss, estimate = unet_loss_and_estimate(unet, schedule, batch, generator, train.timestep_power)
+        if image_weight > 0.0:
+            loss = loss + image_weight * image_space_loss(world.autoencoder, schedule, estimate, batch, restore.residual_decoding)
+        return loss
 
+    identity = {"kind": "restorer", "arch": arch, **config}
+    if init_from is not None:
+        identity["init_from"] = str(init_from)
     stats = run_training_loop(
         f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
-        {"kind": "restorer", "arch": arch, **config}, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
+        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
     )
+    stats["total_steps"], stats["total_cpu_minutes"] = stats["steps"], stats["cpu_ms_per_step"] * stats["steps"] / 60000.0
+    scenes = {seq.scene_id for seq in sequences}
+    if initial_metrics is not None:
+        stats["total_steps"] += initial_metrics.get("total_steps", initial_metrics.get("steps", 0))
+        stats["total_cpu_minutes"] += initial_metrics.get(
+            "total_cpu_minutes", initial_metrics.get("cpu_ms_per_step", 0.0) * initial_metrics.get("steps", 0) / 60000.0
+        )
+        scenes |= set(initial.get("training_scenes", []))
     save_checkpoint(
         out, "restorer", arch, config, unet.state_dict(), autoencoder=autoencoder_payload(world.autoencoder), metrics=stats,
-        world_model=str(world_model_path), training_scenes=sorted({seq.scene_id for seq in sequences}),
+        world_model=str(world_model_path), training_scenes=sorted(scenes),
+        initialised_from=None if init_from is None else str(init_from),
     )
     finish_job(out)
     return stats

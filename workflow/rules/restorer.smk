@@ -56,6 +56,7 @@ rule train_restorer:
                 ("--batch-size", "batch_size"),
                 ("--window", "window"),
                 ("--timestep-power", "timestep_power"),
+                ("--pixel-loss-weight", "pixel_loss_weight"),
                 ("--seed", "seed"),
             )
         )
