@@ -88,7 +88,7 @@ python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --
 
 # Session 8 (docs/restorer.md, "Results (session 8)"): the latent oracle of the held-out pairs, a
 # dd2_mask restorer on whole latents for 3000 steps, one with the image-space loss, and the
-# 8000-step restorer trained further on whole latents (--init-restorer).
+# 8000-step restorer trained further on whole latents (--init-restorer), then two ways on from that.
 S8=$DEV/s8
 mkdir -p "$S8"
 python benchmarks/pairs_error.py --pairs "$DEV/pairs-heldout" --autoencoder "$AE" | tee "$S8/pairs_error_oracle.txt"
@@ -99,5 +99,13 @@ run "$S8/px50_1000.pt" "$S8/px50_1000.log" $RC train-restorer --arch dd2_mask --
 run "$S8/from8000_whole_1500.pt" "$S8/from8000_whole_1500.log" $RC train-restorer --arch dd2_mask --world-model "$WM/wm_dd2.pt" \
   --init-restorer "$OUT/restorer_dd2_mask_8000.pt" --pairs $PAIRS --out "$S8/from8000_whole_1500.pt" --steps 1500 --crop 0 0 \
   --learning-rate 5e-4 $RESTORER_OPTIONS
+# Two ways on from the 9500-step restorer, side by side: plain whole-latent steps, and the image-space loss.
+run "$S8/from9500_whole_2000.pt" "$S8/from9500_whole_2000.log" $RC train-restorer --arch dd2_mask --world-model "$WM/wm_dd2.pt" \
+  --init-restorer "$S8/from8000_whole_1500.pt" --pairs $PAIRS --out "$S8/from9500_whole_2000.pt" --steps 2000 --crop 0 0 \
+  --learning-rate 5e-4 $RESTORER_OPTIONS
+run "$S8/from9500_whole_px50_900.pt" "$S8/from9500_whole_px50_900.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$WM/wm_dd2.pt" --init-restorer "$S8/from8000_whole_1500.pt" --pairs $PAIRS \
+  --out "$S8/from9500_whole_px50_900.pt" --steps 900 --crop 0 0 --learning-rate 5e-4 --pixel-loss-weight 50 $RESTORER_OPTIONS
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
-  --restorer dd2_mask="$S8/px50_1000.pt" dd2_mask="$S8/whole_3000.pt" dd2_mask="$S8/from8000_whole_1500.pt" | tee "$S8/gate_table.txt"
+  --restorer dd2_mask="$S8/px50_1000.pt" dd2_mask="$S8/whole_3000.pt" dd2_mask="$S8/from8000_whole_1500.pt" \
+  dd2_mask="$S8/from9500_whole_2000.pt" dd2_mask="$S8/from9500_whole_px50_900.pt" | tee "$S8/gate_table.txt"
