@@ -26,6 +26,8 @@ import argparse
 import numpy as np
 from scipy.ndimage import binary_dilation
 
+from recondreamer.restorer.training import psnr
+
 BLOCK = 8
 EDGE_STEP = 0.08
 
@@ -61,10 +63,6 @@ def latent_oracle_db(autoencoder, gt: np.ndarray, degraded: np.ndarray) -> float
 
     oracle = residual_decode(autoencoder, degraded, encode_frames(autoencoder, gt), encode_frames(autoencoder, degraded))
     return psnr(oracle, gt) - psnr(degraded, gt)
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    return float(10.0 * np.log10(255.0**2 / np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)))
 
 
 def main() -> None:

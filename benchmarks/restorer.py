@@ -59,6 +59,7 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
     from recondreamer.restorer.checkpoint import load_checkpoint
     from recondreamer.restorer.data import load_pairs_file
     from recondreamer.restorer.inference import load_restorer, restore_clip
+    from recondreamer.restorer.training import training_totals
 
     torch.set_num_threads(threads)
     arch, _, path = item.partition("=")
@@ -67,9 +68,7 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
     trained_on = set(payload.get("training_scenes", []))
     metrics = payload.get("metrics", {})
     train_ms = metrics.get("cpu_ms_per_step", float("nan"))
-    # A restorer trained further from another (--init-restorer) counts both jobs.
-    train_steps = metrics.get("total_steps", metrics.get("steps", 0))
-    train_minutes = metrics.get("total_cpu_minutes", train_ms * metrics.get("steps", 0) / 60000.0)
+    train_steps, train_minutes = training_totals(metrics)  # every job of a restorer trained further (--init-restorer)
     timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
     clips = []  # (kind, degraded, gt, structure)
     for file in pair_files:

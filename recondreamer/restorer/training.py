@@ -367,6 +367,13 @@ def image_space_loss(
     return torch.mean((decoded - batch["target_pixels"].flatten(0, 1)) ** 2)
 
 
+def training_totals(metrics: dict) -> tuple[int, float]:
+    """(steps, CPU minutes) of a checkpoint's training, summed over every job of a restorer trained
+    further with ``init_from``; a single job's own figures where no totals are recorded."""
+    steps = metrics.get("steps", 0)
+    return metrics.get("total_steps", steps), metrics.get("total_cpu_minutes", metrics.get("cpu_ms_per_step", float("nan")) * steps / 60000.0)
+
+
 def initial_restorer_payload(
     path: str | os.PathLike, arch: str, unet_config: UNetConfig, autoencoder: Autoencoder, target_space: str
 ) -> dict:
@@ -499,13 +506,12 @@ def train_restorer(
         f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
         identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
     )
-    stats["total_steps"], stats["total_cpu_minutes"] = stats["steps"], stats["cpu_ms_per_step"] * stats["steps"] / 60000.0
+    stats["total_steps"], stats["total_cpu_minutes"] = training_totals(stats)
     scenes = {seq.scene_id for seq in sequences}
     if initial_metrics is not None:
-        stats["total_steps"] += initial_metrics.get("total_steps", initial_metrics.get("steps", 0))
-        stats["total_cpu_minutes"] += initial_metrics.get(
-            "total_cpu_minutes", initial_metrics.get("cpu_ms_per_step", 0.0) * initial_metrics.get("steps", 0) / 60000.0
-        )
+        initial_steps, initial_minutes = training_totals(initial_metrics)
+        stats["total_steps"] += initial_steps
+        stats["total_cpu_minutes"] += initial_minutes
         scenes |= set(initial.get("training_scenes", []))
     save_checkpoint(
         out, "restorer", arch, config, unet.state_dict(), autoencoder=autoencoder_payload(world.autoencoder), metrics=stats,
