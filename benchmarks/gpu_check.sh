@@ -31,7 +31,9 @@
 #   the preset's) with small step counts. Capacity: CAP_TRAIN (8 scenes), CAP_WIDE ("64 128 256"),
 #   CAP_WM_STEPS / CAP_RESTORER_STEPS of the CPU recipe (1000 1000), CAP_LONG_WM_STEPS /
 #   CAP_LONG_RESTORER_STEPS of the longer runs (2000 1500), CAP_TIMESTEP_POWER of the restorers
-#   (3, as the session-4 table; 50 is train-restorer's default since session 7), CAP_JOBS (parallel CPU jobs, nproc),
+#   (3, as the session-4 table; 50 is train-restorer's default since session 7), CAP_CROP of the restorers'
+#   training latents ("24 32", the default crop; "0 0" = whole latents, better on CPU since session 8),
+#   CAP_PIXEL_LOSS_WEIGHT (0; see train-restorer --pixel-loss-weight), CAP_JOBS (parallel CPU jobs, nproc),
 #   CAP_TRAJECTORIES of the pairs ("original shift@3 shift@6 lane_change"), CAP_CORPUS (the first 20 corpus
 #   scenes pretrain the world models).
 set -uo pipefail
@@ -233,7 +235,7 @@ from recondreamer.restorer.data import load_pair_sequences
 from recondreamer.restorer.models import load_autoencoder
 load_pair_sequences([Path(p) for p in sys.argv[3:]], load_autoencoder(sys.argv[1], sys.argv[2])[0], False, False)
 EOF
-  RESTORER_OPTIONS="--target-space residual --timestep-power ${CAP_TIMESTEP_POWER:-3} --residual-decoding on --sample-steps 1 --strength 1.0 --threads 1"
+  RESTORER_OPTIONS="--target-space residual --timestep-power ${CAP_TIMESTEP_POWER:-3} --residual-decoding on --sample-steps 1 --strength 1.0 --threads 1 --crop ${CAP_CROP:-24 32} --pixel-loss-weight ${CAP_PIXEL_LOSS_WEIGHT:-0}"
   for model in small small_long wide; do
     [ -f "$CAP/models/restorer_$model.pt" ] || $RC train-restorer --arch dd2_mask --world-model "$CAP/models/wm_$model.pt" \
       --pairs "$CAP/pairs-train" --out "$CAP/models/restorer_$model.pt" --steps "${RESTORER_STEPS_OF[$model]}" $RESTORER_OPTIONS \

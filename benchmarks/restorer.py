@@ -52,25 +52,13 @@ def mean(values: list[float]) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_run: int, threads: int) -> list[dict]:
-    """Rows for ARCH=CHECKPOINT: every (steps, strength) setting over every held-out clip."""
-    import torch
-
-    from recondreamer.restorer.checkpoint import load_checkpoint
+def held_out_clips(restorer, payload: dict, pair_files: list, stages_per_run: int) -> list[tuple]:
+    """(kind, degraded, gt, structure) of every clip of the pairs files whose scene the restorer was
+    not trained on; ``stages_per_run`` training stages per file, spread from earliest to latest (0 = all)."""
     from recondreamer.restorer.data import load_pairs_file
-    from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.training import training_totals
 
-    torch.set_num_threads(threads)
-    arch, _, path = item.partition("=")
-    restorer = load_restorer(path)
-    payload = load_checkpoint(path, "restorer")
     trained_on = set(payload.get("training_scenes", []))
-    metrics = payload.get("metrics", {})
-    train_ms = metrics.get("cpu_ms_per_step", float("nan"))
-    train_steps, train_minutes = training_totals(metrics)  # every job of a restorer trained further (--init-restorer)
-    timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
-    clips = []  # (kind, degraded, gt, structure)
+    clips = []
     for file in pair_files:
         content = load_pairs_file(file)
         if str(content["scene_id"]) in trained_on:
@@ -81,6 +69,26 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
             stages = np.unique(np.linspace(0, len(stages) - 1, stages_per_run).round().astype(int))
         structure = content["structure"] if restorer.unet_config.uses_structure else None
         clips += [(kind, degraded, content["gt"], structure) for degraded in content["degraded"][stages]]
+    return clips
+
+
+def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_run: int, threads: int) -> list[dict]:
+    """Rows for ARCH=CHECKPOINT: every (steps, strength) setting over every held-out clip."""
+    import torch
+
+    from recondreamer.restorer.checkpoint import load_checkpoint
+    from recondreamer.restorer.inference import load_restorer, restore_clip
+    from recondreamer.restorer.training import training_totals
+
+    torch.set_num_threads(threads)
+    arch, _, path = item.partition("=")
+    restorer = load_restorer(path)
+    payload = load_checkpoint(path, "restorer")
+    metrics = payload.get("metrics", {})
+    train_ms = metrics.get("cpu_ms_per_step", float("nan"))
+    train_steps, train_minutes = training_totals(metrics)  # every job of a restorer trained further (--init-restorer)
+    timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
+    clips = held_out_clips(restorer, payload, pair_files, stages_per_run)
     rows = []
     for steps, strength, residual in settings:
         records = []

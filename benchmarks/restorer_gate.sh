@@ -11,7 +11,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last part adds the session-8 runs under results/restorer-dev/s8/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 and session-9 runs under results/restorer-dev/s8/ and s9/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -109,3 +109,18 @@ run "$S8/from9500_whole_px50_900.pt" "$S8/from9500_whole_px50_900.log" $RC train
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
   --restorer dd2_mask="$S8/px50_1000.pt" dd2_mask="$S8/whole_3000.pt" dd2_mask="$S8/from8000_whole_1500.pt" \
   dd2_mask="$S8/from9500_whole_2000.pt" dd2_mask="$S8/from9500_whole_px50_900.pt" | tee "$S8/gate_table.txt"
+
+# Session 9 (docs/restorer.md, "Results (session 9)"): the best restorer trained further with a
+# heavier image-space loss (weight 200, then 1000), and inference-time variants of one restorer.
+S9=$DEV/s9
+mkdir -p "$S9"
+run "$S9/from10400_px200_700.pt" "$S9/from10400_px200_700.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$WM/wm_dd2.pt" --init-restorer "$S8/from9500_whole_px50_900.pt" --pairs $PAIRS \
+  --out "$S9/from10400_px200_700.pt" --steps 700 --crop 0 0 --learning-rate 5e-4 --pixel-loss-weight 200 $RESTORER_OPTIONS
+run "$S9/from11100_px1000_600.pt" "$S9/from11100_px1000_600.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$WM/wm_dd2.pt" --init-restorer "$S9/from10400_px200_700.pt" --pairs $PAIRS \
+  --out "$S9/from11100_px1000_600.pt" --steps 600 --crop 0 0 --learning-rate 5e-4 --pixel-loss-weight 1000 $RESTORER_OPTIONS
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S9/from10400_px200_700.pt" dd2_mask="$S9/from11100_px1000_600.pt" | tee "$S9/gate_table.txt"
+python benchmarks/restorer_variants.py --restorer "$S9/from10400_px200_700.pt" --pairs "$DEV/pairs-heldout" \
+  --stages-per-run 2 --seeds 4 --gains 0.8 1.2 1.4 | tee "$S9/variants.txt"
