@@ -111,7 +111,7 @@ python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --
   dd2_mask="$S8/from9500_whole_2000.pt" dd2_mask="$S8/from9500_whole_px50_900.pt" | tee "$S8/gate_table.txt"
 
 # Session 9 (docs/restorer.md, "Results (session 9)"): the best restorer trained further with a
-# heavier image-space loss (weight 200, then 1000), and inference-time variants of one restorer.
+# heavier image-space loss (weight 200, then 1000 or a lower learning rate), and inference-time variants of one restorer.
 S9=$DEV/s9
 mkdir -p "$S9"
 run "$S9/from10400_px200_700.pt" "$S9/from10400_px200_700.log" $RC train-restorer --arch dd2_mask \
@@ -120,7 +120,11 @@ run "$S9/from10400_px200_700.pt" "$S9/from10400_px200_700.log" $RC train-restore
 run "$S9/from11100_px1000_600.pt" "$S9/from11100_px1000_600.log" $RC train-restorer --arch dd2_mask \
   --world-model "$WM/wm_dd2.pt" --init-restorer "$S9/from10400_px200_700.pt" --pairs $PAIRS \
   --out "$S9/from11100_px1000_600.pt" --steps 600 --crop 0 0 --learning-rate 5e-4 --pixel-loss-weight 1000 $RESTORER_OPTIONS
+run "$S9/from11100_px200_700_lr2.5e-4.pt" "$S9/from11100_px200_700_lr2.5e-4.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$WM/wm_dd2.pt" --init-restorer "$S9/from10400_px200_700.pt" --pairs $PAIRS \
+  --out "$S9/from11100_px200_700_lr2.5e-4.pt" --steps 700 --crop 0 0 --learning-rate 2.5e-4 --pixel-loss-weight 200 $RESTORER_OPTIONS
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
-  --restorer dd2_mask="$S9/from10400_px200_700.pt" dd2_mask="$S9/from11100_px1000_600.pt" | tee "$S9/gate_table.txt"
+  --restorer dd2_mask="$S9/from10400_px200_700.pt" dd2_mask="$S9/from11100_px1000_600.pt" \
+  dd2_mask="$S9/from11100_px200_700_lr2.5e-4.pt" --jobs 2 | tee "$S9/gate_table.txt"
 python benchmarks/restorer_variants.py --restorer "$S9/from10400_px200_700.pt" --pairs "$DEV/pairs-heldout" \
   --stages-per-run 2 --seeds 4 --gains 0.8 1.2 1.4 | tee "$S9/variants.txt"
