@@ -36,11 +36,6 @@ import time
 import numpy as np
 
 
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
-    return float(10.0 * np.log10(255.0**2 / max(mse, 1e-10)))
-
-
 def flicker(clip: np.ndarray, gt: np.ndarray) -> float:
     """Temporal-difference error of (T,H,W,3) uint8 clips, in 0-255 units."""
     dx = np.diff(clip.astype(np.float32), axis=0)
@@ -78,7 +73,7 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
 
     from recondreamer.restorer.checkpoint import load_checkpoint
     from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.training import training_totals
+    from recondreamer.restorer.training import psnr, training_totals
 
     torch.set_num_threads(threads)
     arch, _, path = item.partition("=")

@@ -466,11 +466,10 @@ def train_restorer(
     torch.manual_seed(train.seed)
     world.to(device)
     unet = restorer_unet_from_world_model(world, arch)
-    initial_metrics = None
+    initial = None  # the restorer checkpoint this job starts from, if any
     if init_from is not None:
         initial = initial_restorer_payload(init_from, arch, unet.config, world.autoencoder, target_space)
         unet.load_state_dict(initial["state"])
-        initial_metrics = initial.get("metrics", {})
     unet = unet.to(device)
     scale = residual_scale(sequences) if target_space == "residual" else 1.0
     diffusion_config = dataclasses.replace(world.diffusion_config, target_space=target_space, residual_scale=scale)
@@ -508,8 +507,8 @@ def train_restorer(
     )
     stats["total_steps"], stats["total_cpu_minutes"] = training_totals(stats)
     scenes = {seq.scene_id for seq in sequences}
-    if initial_metrics is not None:
-        initial_steps, initial_minutes = training_totals(initial_metrics)
+    if initial is not None:
+        initial_steps, initial_minutes = training_totals(initial.get("metrics", {}))
         stats["total_steps"] += initial_steps
         stats["total_cpu_minutes"] += initial_minutes
         scenes |= set(initial.get("training_scenes", []))
