@@ -11,7 +11,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 and session-9 runs under results/restorer-dev/s8/ and s9/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8, -9 and -10 runs under results/restorer-dev/s8/, s9/, s10/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -26,10 +26,7 @@ RESTORER_STEPS=3000     # every backbone (25 CPU min for dd2_mask); dd2_mask als
 # Timestep power 50: training steps drawn with density ~ t^49, 95% of them above t = 940, i.e. the
 # restorer learns the one step it samples (t = 999); power 3 at 3000 steps gained 0.22 dB less.
 RESTORER_OPTIONS="--target-space residual --timestep-power 50 --residual-decoding on --sample-steps 1 --strength 1.0 --threads 1"
-mkdir -p "$DEV/corpus-train" "$DEV/recon" "$DEV/pairs-train" "$DEV/pairs-heldout" "$DEV/logs" "$WM" "$OUT"
-
-# The autoencoder and the world models see corpus-000..019 only.
-for i in $(seq -w 0 19); do ln -sfn "../../corpus/corpus-0$i" "$DEV/corpus-train/corpus-0$i"; done
+mkdir -p results/corpus "$DEV/corpus-train" "$DEV/recon" "$DEV/pairs-train" "$DEV/pairs-heldout" "$DEV/logs" "$WM" "$OUT"
 
 run() {  # run OUTPUT LOG COMMAND...: skip when OUTPUT exists
   local out=$1 log=$2; shift 2
@@ -37,6 +34,16 @@ run() {  # run OUTPUT LOG COMMAND...: skip when OUTPUT exists
   echo "$(date +%T) make $out"
   "$@" > "$log" 2>&1
 }
+
+# The corpus scenes, as config/full.yaml's workflow makes them (seed 10000 + index, default preset);
+# a finished full run's results/corpus is used as it is.
+for i in $(seq 0 19) 21 22; do
+  scene=$(printf "corpus-%03d" "$i")
+  run "results/corpus/$scene" "$DEV/logs/synth_$scene.log" $RC synth --seed $((10000 + i)) --preset default \
+    --scene-id "$scene" --out "results/corpus/$scene"
+done
+# The autoencoder and the world models see corpus-000..019 only.
+for i in $(seq -w 0 19); do ln -sfn "../../corpus/corpus-0$i" "$DEV/corpus-train/corpus-0$i"; done
 
 run "$AE" "$DEV/logs/ae8_5000.log" $RC train-autoencoder --corpus "$DEV/corpus-train" --out "$AE" \
   --steps 5000 --latent-channels 8 --threads 1
@@ -128,3 +135,34 @@ python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --
   dd2_mask="$S9/from11100_px200_700_lr2.5e-4.pt" --jobs 2 | tee "$S9/gate_table.txt"
 python benchmarks/restorer_variants.py --restorer "$S9/from10400_px200_700.pt" --pairs "$DEV/pairs-heldout" \
   --stages-per-run 2 --seeds 4 --gains 0.8 1.2 1.4 | tee "$S9/variants.txt"
+
+# Session 10 (docs/restorer.md, "Results (session 10)"): weight averaging (--ema-decay) against the
+# same job without it, at 1000 whole-latent steps (seeds 0 and 1) and continued to 4000; a second pass trained on
+# the first pass's outputs (benchmarks/restored_pairs.py).
+S10=$DEV/s10
+mkdir -p "$S10"
+WHOLE="--arch dd2_mask --world-model $WM/wm_dd2.pt --crop 0 0 $RESTORER_OPTIONS"
+run "$S10/base_1000.pt" "$S10/base_1000.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S10/base_1000.pt" --steps 1000
+run "$S10/ema995_1000.pt" "$S10/ema995_1000.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S10/ema995_1000.pt" \
+  --steps 1000 --ema-decay 0.995
+run "$S10/base_1000_seed1.pt" "$S10/base_1000_seed1.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S10/base_1000_seed1.pt" \
+  --steps 1000 --seed 1
+run "$S10/ema995_1000_seed1.pt" "$S10/ema995_1000_seed1.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S10/ema995_1000_seed1.pt" \
+  --steps 1000 --seed 1 --ema-decay 0.995
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S10/base_1000.pt" dd2_mask="$S10/ema995_1000.pt" \
+  dd2_mask="$S10/base_1000_seed1.pt" dd2_mask="$S10/ema995_1000_seed1.pt" --jobs 2 | tee "$S10/gate_ema_1000.txt"
+run "$S10/base_from1000_3000.pt" "$S10/base_from1000_3000.log" $RC train-restorer $WHOLE --pairs $PAIRS \
+  --init-restorer "$S10/base_1000.pt" --out "$S10/base_from1000_3000.pt" --steps 3000
+run "$S10/ema_from1000_3000.pt" "$S10/ema_from1000_3000.log" $RC train-restorer $WHOLE --pairs $PAIRS \
+  --init-restorer "$S10/ema995_1000.pt" --out "$S10/ema_from1000_3000.pt" --steps 3000 --ema-decay 0.999
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S10/base_from1000_3000.pt" dd2_mask="$S10/ema_from1000_3000.pt" --jobs 2 | tee "$S10/gate_ema_4000.txt"
+# Second pass: pairs whose degraded clips are the 1000-step EMA restorer's outputs, a restorer trained
+# on them the same way, scored on the restored held-out pairs (its gain adds to the first pass's).
+python benchmarks/restored_pairs.py --restorer "$S10/ema995_1000.pt" --pairs "$DEV/pairs-heldout" --out "$S10/pairs-heldout-R1"
+python benchmarks/restored_pairs.py --restorer "$S10/ema995_1000.pt" --pairs "$DEV/pairs-train" --out "$S10/pairs-train-R1"
+run "$S10/R2_ema995_1000.pt" "$S10/R2_ema995_1000.log" $RC train-restorer $WHOLE --pairs "$S10/pairs-train-R1" \
+  --out "$S10/R2_ema995_1000.pt" --steps 1000 --ema-decay 0.995
+python benchmarks/restorer.py --pairs "$S10/pairs-heldout-R1" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S10/R2_ema995_1000.pt" | tee "$S10/gate_R2.txt"

@@ -145,6 +145,11 @@ def _add_train_options(p: argparse.ArgumentParser) -> None:
         help="latent crop (h w) of training clips; 0 0 = whole latents (default from TrainConfig)",
     )
     p.add_argument(
+        "--ema-decay", type=float, default=None,
+        help="keep an exponential moving average of the weights with this decay and save it (0 = the last weights; "
+        "default from TrainConfig: 0); pick it so that decay^steps is small, e.g. 0.995 for 1000 steps",
+    )
+    p.add_argument(
         "--timestep-power", type=float, default=None,
         help="training timesteps drawn with density ~ t^(power-1): 1 = uniform, > 1 favours the noisy steps a "
         "few-step sampler visits (default 1 for world models, 50 for restorers: almost only the t = 999 of 1-step restoring)",
@@ -157,13 +162,21 @@ def _add_sampling_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="sampling seed (default from the checkpoint)")
 
 
+def _check_train_options(args: argparse.Namespace) -> None:
+    """Reject bad training options before any model or data is loaded."""
+    from recondreamer.errors import RecondreamerError
+
+    if args.ema_decay is not None and not 0.0 <= args.ema_decay < 1.0:
+        raise RecondreamerError(f"--ema-decay must be in [0, 1), got {args.ema_decay}")
+
+
 def _train_config(args: argparse.Namespace, base=None):
     from recondreamer.restorer.config import TrainConfig
 
     overrides = {
         "steps": args.steps, "batch_size": args.batch_size, "window": args.window,
         "learning_rate": args.learning_rate, "seed": args.seed, "timestep_power": args.timestep_power,
-        "crop": None if args.crop is None else tuple(args.crop),
+        "crop": None if args.crop is None else tuple(args.crop), "ema_decay": args.ema_decay,
     }
     return dataclasses.replace(base or TrainConfig(), **{k: v for k, v in overrides.items() if v is not None})
 
@@ -197,6 +210,7 @@ def run_pretrain_world_model(args: argparse.Namespace) -> int:
     from recondreamer.restorer.models import load_autoencoder
     from recondreamer.restorer.training import pretrain_world_model
 
+    _check_train_options(args)
     _set_threads(args)
     device = _device(args)
     autoencoder, _ = load_autoencoder(args.autoencoder, device)
@@ -251,6 +265,7 @@ def run_train_restorer(args: argparse.Namespace) -> int:
 
     if args.pixel_loss_weight is not None and args.pixel_loss_weight < 0.0:
         raise RecondreamerError(f"--pixel-loss-weight must be >= 0, got {args.pixel_loss_weight}")
+    _check_train_options(args)
     _set_threads(args)
     device = _device(args)
     world = load_world_model(args.world_model, device)

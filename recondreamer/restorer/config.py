@@ -131,6 +131,10 @@ class TrainConfig:
     # Restorers: weight of an image-space term beside the diffusion loss, the MSE of the frames the
     # one-step sample decodes to (training.image_space_loss); 0 = the diffusion loss alone.
     pixel_loss_weight: float = 0.0
+    # Decay of an exponential moving average of the weights, which the checkpoint then holds;
+    # 0 = the last weights. Batches of two clips make single steps noisy, and averaging them is
+    # standard in diffusion training (training.run_training_loop).
+    ema_decay: float = 0.0
     checkpoint_every: int = 200
     log_every: int = 50
     seed: int = 0

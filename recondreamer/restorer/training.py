@@ -104,14 +104,29 @@ def run_training_loop(
     log_every: int,
     seed: int,
     weight_decay: float = 0.0,
+    ema_decay: float = 0.0,
 ) -> dict:
     """Optimise ``module`` with AdamW for ``steps`` steps, resuming from ``OUT.resume.pt``.
 
     ``job_identity`` (arch and configs) must match the resume file's for it to be used; the
     step count may differ (a job can be extended or cut short on resume: the learning-rate
-    schedule then follows the new total). Returns {"final_loss", "ms_per_step", "steps"}.
+    schedule then follows the new total). With ``ema_decay`` > 0 an exponential moving average
+    of the weights is kept from the first step (torch's ``AveragedModel``) and ``module`` ends
+    with the averaged weights. Returns {"final_loss", "ms_per_step", "steps"}.
     """
+    if not 0.0 <= ema_decay < 1.0:
+        raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
     optimizer = torch.optim.AdamW(module.parameters(), lr=learning_rate, weight_decay=weight_decay)
+    ema = None
+    if ema_decay > 0.0:
+        # The average starts from the weights the job starts from; their share left at the end is
+        # ema_decay**steps, so a short job with a slow average would mostly keep its start.
+        if ema_decay**steps > 0.05:
+            LOG.warning(
+                "%s: EMA decay %g keeps %.0f%% of the starting weights after %d steps; use a smaller decay for so short a job",
+                name, ema_decay, 100.0 * ema_decay**steps, steps,
+            )
+        ema = torch.optim.swa_utils.AveragedModel(module, multi_avg_fn=torch.optim.swa_utils.get_ema_multi_avg_fn(ema_decay))
     rng = np.random.default_rng(seed)
     generator = torch.Generator().manual_seed(seed)
     start = 0
@@ -122,6 +137,8 @@ def run_training_loop(
             raise CheckpointError(f"{state_file}: resume file of a different job configuration; delete it to start afresh")
         module.load_state_dict(state["state"])
         optimizer.load_state_dict(state["optimizer"])
+        if ema is not None:
+            ema.load_state_dict(state["ema"])
         rng.bit_generator.state = state["numpy_rng"]
         generator.set_state(state["torch_rng"])
         start = state["step"]
@@ -137,14 +154,18 @@ def run_training_loop(
         loss.backward()
         torch.nn.utils.clip_grad_norm_(module.parameters(), 1.0)
         optimizer.step()
+        if ema is not None:
+            ema.update_parameters(module)
         recent = (recent + [loss.item()])[-50:]
         progress.update(step, loss.item())
         if (step + 1) % checkpoint_every == 0 and step + 1 < steps:
             save_checkpoint(
                 state_file, "training_state", job_identity.get("arch", ""), job_identity, module.state_dict(),
                 optimizer=optimizer.state_dict(), numpy_rng=rng.bit_generator.state,
-                torch_rng=generator.get_state(), step=step + 1,
+                torch_rng=generator.get_state(), step=step + 1, ema=None if ema is None else ema.state_dict(),
             )
+    if ema is not None:
+        module.load_state_dict(ema.module.state_dict())
     module.eval()
     return {
         "final_loss": float(np.mean(recent)) if recent else float("nan"),
@@ -435,6 +456,7 @@ def pretrain_world_model(
     stats = run_training_loop(
         f"pretrain {unet_config.arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
         {"kind": "world_model", "arch": unet_config.arch, **config}, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
+        train.ema_decay,
     )
     save_checkpoint(out, "world_model", unet_config.arch, config, unet.state_dict(), autoencoder=autoencoder_payload(autoencoder), metrics=stats)
     finish_job(out)
@@ -503,7 +525,7 @@ def train_restorer(
         identity["init_from"] = str(init_from)
     stats = run_training_loop(
         f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
-        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
+        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay, train.ema_decay,
     )
     stats["total_steps"], stats["total_cpu_minutes"] = training_totals(stats)
     scenes = {seq.scene_id for seq in sequences}

@@ -57,6 +57,7 @@ rule train_restorer:
                 ("--window", "window"),
                 ("--timestep-power", "timestep_power"),
                 ("--pixel-loss-weight", "pixel_loss_weight"),
+                ("--ema-decay", "ema_decay"),
                 ("--seed", "seed"),
             )
         )
