@@ -168,6 +168,9 @@ def _check_train_options(args: argparse.Namespace) -> None:
 
     if args.ema_decay is not None and not 0.0 <= args.ema_decay < 1.0:
         raise RecondreamerError(f"--ema-decay must be in [0, 1), got {args.ema_decay}")
+    pixel_loss_weight = getattr(args, "pixel_loss_weight", None)  # train-restorer only
+    if pixel_loss_weight is not None and pixel_loss_weight < 0.0:
+        raise RecondreamerError(f"--pixel-loss-weight must be >= 0, got {pixel_loss_weight}")
 
 
 def _train_config(args: argparse.Namespace, base=None):
@@ -263,8 +266,6 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     from recondreamer.restorer.inference import load_world_model
     from recondreamer.restorer.training import train_restorer
 
-    if args.pixel_loss_weight is not None and args.pixel_loss_weight < 0.0:
-        raise RecondreamerError(f"--pixel-loss-weight must be >= 0, got {args.pixel_loss_weight}")
     _check_train_options(args)
     _set_threads(args)
     device = _device(args)
