@@ -20,7 +20,9 @@ trajectory), restore the clip and print:
 - the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``.
 
 Pairs whose scene was in a restorer's training set are skipped for that restorer (the checkpoint
-records its training scenes). Example::
+records its training scenes). ``--training-scenes`` scores the opposite set, only clips of the
+restorer's own training scenes: the gap between that gain and the held-out gain measures how much of
+what a restorer learned is specific to the scenes it saw. Example::
 
     python benchmarks/restorer.py --restorer sd=R/sd.pt svd=R/svd.pt dd2=R/dd2.pt dd2_mask=R/dd2_mask.pt \\
         --pairs results/pairs_heldout --steps 1 4 10 --strength 1.0 0.6 0.3 --residual-decoding on off
@@ -47,16 +49,17 @@ def mean(values: list[float]) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-def held_out_clips(restorer, payload: dict, pair_files: list, stages_per_run: int) -> list[tuple]:
+def held_out_clips(restorer, payload: dict, pair_files: list, stages_per_run: int, training_scenes: bool = False) -> list[tuple]:
     """(kind, degraded, gt, structure) of every clip of the pairs files whose scene the restorer was
-    not trained on; ``stages_per_run`` training stages per file, spread from earliest to latest (0 = all)."""
+    not trained on (with ``training_scenes``: only those it was trained on); ``stages_per_run``
+    training stages per file, spread from earliest to latest (0 = all)."""
     from recondreamer.restorer.data import load_pairs_file
 
     trained_on = set(payload.get("training_scenes", []))
     clips = []
     for file in pair_files:
         content = load_pairs_file(file)
-        if str(content["scene_id"]) in trained_on:
+        if (str(content["scene_id"]) in trained_on) != training_scenes:
             continue
         kind = "orig" if str(content.get("trajectory", "original")) == "original" else "novel"
         stages = np.arange(len(content["degraded"]))
@@ -67,8 +70,11 @@ def held_out_clips(restorer, payload: dict, pair_files: list, stages_per_run: in
     return clips
 
 
-def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_run: int, threads: int) -> list[dict]:
-    """Rows for ARCH=CHECKPOINT: every (steps, strength) setting over every held-out clip."""
+def evaluate_restorer(
+    item: str, pair_files: list, settings: list, stages_per_run: int, threads: int, training_scenes: bool = False
+) -> list[dict]:
+    """Rows for ARCH=CHECKPOINT: every (steps, strength) setting over every held-out clip (or every
+    clip of its training scenes)."""
     import torch
 
     from recondreamer.restorer.checkpoint import load_checkpoint
@@ -83,7 +89,7 @@ def evaluate_restorer(item: str, pair_files: list, settings: list, stages_per_ru
     train_ms = metrics.get("cpu_ms_per_step", float("nan"))
     train_steps, train_minutes = training_totals(metrics)  # every job of a restorer trained further (--init-restorer)
     timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
-    clips = held_out_clips(restorer, payload, pair_files, stages_per_run)
+    clips = held_out_clips(restorer, payload, pair_files, stages_per_run, training_scenes)
     rows = []
     for steps, strength, residual in settings:
         records = []
@@ -139,6 +145,10 @@ def main() -> None:
         "--stages-per-run", type=int, default=0,
         help="evaluate this many training stages per pairs file, spread from earliest to latest (0 = all)",
     )
+    parser.add_argument(
+        "--training-scenes", action="store_true",
+        help="score only clips of each restorer's own training scenes (default: only held-out scenes)",
+    )
     args = parser.parse_args()
 
     from recondreamer.restorer.data import find_pairs_files
@@ -146,7 +156,7 @@ def main() -> None:
     files = find_pairs_files(args.pairs)
     residual = [None if value is None else value == "on" for value in args.residual_decoding]
     settings = list(itertools.product(args.steps, args.strength, residual))
-    jobs = [(item, files, settings, args.stages_per_run, args.threads) for item in args.restorer]
+    jobs = [(item, files, settings, args.stages_per_run, args.threads, args.training_scenes) for item in args.restorer]
     if args.jobs > 1:
         with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
             rows = [row for result in pool.starmap(evaluate_restorer, jobs) for row in result]
@@ -157,7 +167,8 @@ def main() -> None:
         f"{'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick rest':>10s} {'s / 40 fr':>9s} {'cpu s / 40':>10s} "
         f"{'train steps':>11s} {'t power':>7s} {'train CPU ms/step':>17s} {'train CPU min':>13s}"
     )
-    print(f"threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
+    scored = "clips of each restorer's training scenes" if args.training_scenes else "held-out clips"
+    print(f"{scored}; threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
     print(header)
     print("-" * len(header))
     for row in sorted(rows, key=lambda r: (r["residual"], r["steps"], -r["strength"])):
