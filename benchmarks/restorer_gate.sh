@@ -166,3 +166,38 @@ run "$S10/R2_ema995_1000.pt" "$S10/R2_ema995_1000.log" $RC train-restorer $WHOLE
   --out "$S10/R2_ema995_1000.pt" --steps 1000 --ema-decay 0.995
 python benchmarks/restorer.py --pairs "$S10/pairs-heldout-R1" --stages-per-run 2 --steps 1 \
   --restorer dd2_mask="$S10/R2_ema995_1000.pt" | tee "$S10/gate_R2.txt"
+# Session 11 (docs/restorer.md, "Results (session 11)"): how much of the gain is specific to the
+# training scenes (--training-scenes), then 45 more training scenes (corpus-013..019, 023..060:
+# street runs and pairs as above) against the same 2500 steps on the 13 scenes, both from the
+# 4000-step EMA restorer of session 10.
+S11=$DEV/s11
+mkdir -p "$S11" "$S11/pairs-seen" "$S11/pairs-unseen"
+ln -sfn "$PWD/$DEV"/pairs-train/corpus-00[39]__*.npz "$S11/pairs-seen/"
+ln -sfn "$PWD/$DEV"/pairs-train/corpus-01[34]__*.npz "$S11/pairs-unseen/"
+for i in 13 14 15 16 17 18 19 $(seq 23 60); do
+  scene=$(printf "corpus-%03d" "$i")
+  run "results/corpus/$scene" "$DEV/logs/synth_$scene.log" $RC synth --seed $((10000 + i)) --preset default \
+    --scene-id "$scene" --out "results/corpus/$scene"
+  run "$DEV/recon/$scene/street/model.pt" "$DEV/logs/recon_$scene.log" $RC train-recon --scene "results/corpus/$scene" \
+    --model street --preset default --seed 0 --threads 1 --out "$DEV/recon/$scene/street"
+  run "$DEV/pairs-train/${scene}__street.npz" "$DEV/logs/pairs_$scene.log" $RC make-pairs --run "$DEV/recon/$scene/street" \
+    --out "$DEV/pairs-train" --stages 4 --trajectories $TRAJECTORIES --threads 1
+done
+for restorer in "$S10/ema995_1000.pt" "$S10/ema_from1000_3000.pt"; do
+  python benchmarks/restorer.py --pairs "$S11/pairs-unseen" --stages-per-run 2 --steps 1 --restorer dd2_mask="$restorer"
+  python benchmarks/restorer.py --pairs "$S11/pairs-seen" --stages-per-run 2 --steps 1 --training-scenes --restorer dd2_mask="$restorer"
+done | tee "$S11/gap.txt"
+PAIRS58=$(for scene in $(seq -f "corpus-%03g" 0 19) $(seq -f "corpus-%03g" 23 60); do ls "$DEV/pairs-train/${scene}"__*.npz; done)
+run "$S11/scenes13_from4000_2500.pt" "$S11/scenes13_from4000_2500.log" $RC train-restorer $WHOLE --pairs $PAIRS \
+  --init-restorer "$S10/ema_from1000_3000.pt" --out "$S11/scenes13_from4000_2500.pt" --steps 2500 --ema-decay 0.999
+run "$S11/scenes58_from4000_2500.pt" "$S11/scenes58_from4000_2500.log" $RC train-restorer $WHOLE --pairs $PAIRS58 \
+  --init-restorer "$S10/ema_from1000_3000.pt" --out "$S11/scenes58_from4000_2500.pt" --steps 2500 --ema-decay 0.999
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S11/scenes13_from4000_2500.pt" dd2_mask="$S11/scenes58_from4000_2500.pt" --jobs 2 | tee "$S11/gate_scenes.txt"
+# The 58-scene restorer, 1500 more steps (two threads, the machine to itself).
+run "$S11/scenes58_from6500_1500.pt" "$S11/scenes58_from6500_1500.log" $RC train-restorer \
+  --arch dd2_mask --world-model "$WM/wm_dd2.pt" --crop 0 0 --target-space residual --timestep-power 50 --residual-decoding on \
+  --sample-steps 1 --strength 1.0 --threads 2 --pairs $PAIRS58 --init-restorer "$S11/scenes58_from4000_2500.pt" \
+  --out "$S11/scenes58_from6500_1500.pt" --steps 1500 --ema-decay 0.997
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S11/scenes58_from6500_1500.pt" --threads 2 | tee "$S11/gate_scenes58_8000.txt"
