@@ -49,7 +49,7 @@ def mean(values: list[float]) -> float:
     return float(np.mean(values)) if values else float("nan")
 
 
-def held_out_clips(restorer, payload: dict, pair_files: list, stages_per_run: int, training_scenes: bool = False) -> list[tuple]:
+def scored_clips(restorer, payload: dict, pair_files: list, stages_per_run: int, training_scenes: bool = False) -> list[tuple]:
     """(kind, degraded, gt, structure) of every clip of the pairs files whose scene the restorer was
     not trained on (with ``training_scenes``: only those it was trained on); ``stages_per_run``
     training stages per file, spread from earliest to latest (0 = all)."""
@@ -89,7 +89,7 @@ def evaluate_restorer(
     train_ms = metrics.get("cpu_ms_per_step", float("nan"))
     train_steps, train_minutes = training_totals(metrics)  # every job of a restorer trained further (--init-restorer)
     timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
-    clips = held_out_clips(restorer, payload, pair_files, stages_per_run, training_scenes)
+    clips = scored_clips(restorer, payload, pair_files, stages_per_run, training_scenes)
     rows = []
     for steps, strength, residual in settings:
         records = []

@@ -6,7 +6,8 @@
 # dd2_mask restorer trained 8000 steps, and the side-by-side gate table.
 #
 # Splits: autoencoder and world models train on corpus-000..019; restorers on pairs of
-# corpus-000..012; the gate uses pairs of corpus-021 and corpus-022, which no model saw.
+# corpus-000..012 (session 11's runs also on MORE_SCENES, corpus-013..019 and 023..060); the gate
+# uses pairs of corpus-021 and corpus-022, which no model saw.
 # Every step is an ordinary CLI command with one torch thread, run one after another (the
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
@@ -18,6 +19,7 @@ DEV=results/restorer-dev
 RC="python -m recondreamer"
 TRAIN_SCENES=$(seq -f "corpus-%03g" 0 12)
 HELDOUT_SCENES="corpus-021 corpus-022"
+MORE_SCENES=$(seq -f "corpus-%03g" 13 19; seq -f "corpus-%03g" 23 60)  # session 11: 45 more training scenes
 TRAJECTORIES="original shift@3 shift@6 lane_change"
 AE=$DEV/ae8_5000.pt
 WM=$DEV/long            # world models (1000 steps each on ae8_5000.pt)
@@ -37,7 +39,7 @@ run() {  # run OUTPUT LOG COMMAND...: skip when OUTPUT exists
 
 # The corpus scenes, as config/full.yaml's workflow makes them (seed 10000 + index, default preset);
 # a finished full run's results/corpus is used as it is.
-for i in $(seq 0 19) 21 22; do
+for i in $(seq 0 19) $(seq 21 60); do
   scene=$(printf "corpus-%03d" "$i")
   run "results/corpus/$scene" "$DEV/logs/synth_$scene.log" $RC synth --seed $((10000 + i)) --preset default \
     --scene-id "$scene" --out "results/corpus/$scene"
@@ -48,11 +50,11 @@ for i in $(seq -w 0 19); do ln -sfn "../../corpus/corpus-0$i" "$DEV/corpus-train
 run "$AE" "$DEV/logs/ae8_5000.log" $RC train-autoencoder --corpus "$DEV/corpus-train" --out "$AE" \
   --steps 5000 --latent-channels 8 --threads 1
 
-for scene in $TRAIN_SCENES $HELDOUT_SCENES; do
+for scene in $TRAIN_SCENES $MORE_SCENES $HELDOUT_SCENES; do
   run "$DEV/recon/$scene/street/model.pt" "$DEV/logs/recon_$scene.log" $RC train-recon --scene "results/corpus/$scene" \
     --model street --preset default --seed 0 --threads 1 --out "$DEV/recon/$scene/street"
 done
-for scene in $TRAIN_SCENES; do
+for scene in $TRAIN_SCENES $MORE_SCENES; do
   run "$DEV/pairs-train/${scene}__street.npz" "$DEV/logs/pairs_$scene.log" $RC make-pairs --run "$DEV/recon/$scene/street" \
     --out "$DEV/pairs-train" --stages 4 --trajectories $TRAJECTORIES --threads 1
 done
@@ -169,25 +171,16 @@ python benchmarks/restorer.py --pairs "$S10/pairs-heldout-R1" --stages-per-run 2
 # Session 11 (docs/restorer.md, "Results (session 11)"): how much of the gain is specific to the
 # training scenes (--training-scenes), then 45 more training scenes (corpus-013..019, 023..060:
 # street runs and pairs as above) against the same 2500 steps on the 13 scenes, both from the
-# 4000-step EMA restorer of session 10.
+# 4000-step EMA restorer of session 10 (the 45 scenes' street runs and pairs are made at the top).
 S11=$DEV/s11
 mkdir -p "$S11" "$S11/pairs-seen" "$S11/pairs-unseen"
 ln -sfn "$PWD/$DEV"/pairs-train/corpus-00[39]__*.npz "$S11/pairs-seen/"
 ln -sfn "$PWD/$DEV"/pairs-train/corpus-01[34]__*.npz "$S11/pairs-unseen/"
-for i in 13 14 15 16 17 18 19 $(seq 23 60); do
-  scene=$(printf "corpus-%03d" "$i")
-  run "results/corpus/$scene" "$DEV/logs/synth_$scene.log" $RC synth --seed $((10000 + i)) --preset default \
-    --scene-id "$scene" --out "results/corpus/$scene"
-  run "$DEV/recon/$scene/street/model.pt" "$DEV/logs/recon_$scene.log" $RC train-recon --scene "results/corpus/$scene" \
-    --model street --preset default --seed 0 --threads 1 --out "$DEV/recon/$scene/street"
-  run "$DEV/pairs-train/${scene}__street.npz" "$DEV/logs/pairs_$scene.log" $RC make-pairs --run "$DEV/recon/$scene/street" \
-    --out "$DEV/pairs-train" --stages 4 --trajectories $TRAJECTORIES --threads 1
-done
 for restorer in "$S10/ema995_1000.pt" "$S10/ema_from1000_3000.pt"; do
   python benchmarks/restorer.py --pairs "$S11/pairs-unseen" --stages-per-run 2 --steps 1 --restorer dd2_mask="$restorer"
   python benchmarks/restorer.py --pairs "$S11/pairs-seen" --stages-per-run 2 --steps 1 --training-scenes --restorer dd2_mask="$restorer"
 done | tee "$S11/gap.txt"
-PAIRS58=$(for scene in $(seq -f "corpus-%03g" 0 19) $(seq -f "corpus-%03g" 23 60); do ls "$DEV/pairs-train/${scene}"__*.npz; done)
+PAIRS58=$(for scene in $TRAIN_SCENES $MORE_SCENES; do ls "$DEV/pairs-train/${scene}"__*.npz; done)
 run "$S11/scenes13_from4000_2500.pt" "$S11/scenes13_from4000_2500.log" $RC train-restorer $WHOLE --pairs $PAIRS \
   --init-restorer "$S10/ema_from1000_3000.pt" --out "$S11/scenes13_from4000_2500.pt" --steps 2500 --ema-decay 0.999
 run "$S11/scenes58_from4000_2500.pt" "$S11/scenes58_from4000_2500.log" $RC train-restorer $WHOLE --pairs $PAIRS58 \
@@ -195,9 +188,7 @@ run "$S11/scenes58_from4000_2500.pt" "$S11/scenes58_from4000_2500.log" $RC train
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
   --restorer dd2_mask="$S11/scenes13_from4000_2500.pt" dd2_mask="$S11/scenes58_from4000_2500.pt" --jobs 2 | tee "$S11/gate_scenes.txt"
 # The 58-scene restorer, 1500 more steps (two threads, the machine to itself).
-run "$S11/scenes58_from6500_1500.pt" "$S11/scenes58_from6500_1500.log" $RC train-restorer \
-  --arch dd2_mask --world-model "$WM/wm_dd2.pt" --crop 0 0 --target-space residual --timestep-power 50 --residual-decoding on \
-  --sample-steps 1 --strength 1.0 --threads 2 --pairs $PAIRS58 --init-restorer "$S11/scenes58_from4000_2500.pt" \
-  --out "$S11/scenes58_from6500_1500.pt" --steps 1500 --ema-decay 0.997
+run "$S11/scenes58_from6500_1500.pt" "$S11/scenes58_from6500_1500.log" $RC train-restorer $WHOLE --threads 2 \
+  --pairs $PAIRS58 --init-restorer "$S11/scenes58_from4000_2500.pt" --out "$S11/scenes58_from6500_1500.pt" --steps 1500 --ema-decay 0.997
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
   --restorer dd2_mask="$S11/scenes58_from6500_1500.pt" --threads 2 | tee "$S11/gate_scenes58_8000.txt"

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from restorer import held_out_clips  # noqa: E402  benchmarks/restorer.py
+from restorer import scored_clips  # noqa: E402  benchmarks/restorer.py
 
 
 def mean_psnr(clip: np.ndarray, gt: np.ndarray) -> float:  # (T,H,W,3) float or uint8 vs uint8
@@ -77,7 +77,7 @@ def main() -> None:
 
     torch.set_num_threads(args.threads)
     restorer = load_restorer(args.restorer)
-    clips = held_out_clips(restorer, load_checkpoint(args.restorer, "restorer"), find_pairs_files(args.pairs), args.stages_per_run)
+    clips = scored_clips(restorer, load_checkpoint(args.restorer, "restorer"), find_pairs_files(args.pairs), args.stages_per_run)
     if not clips:
         raise SystemExit(f"no held-out clips in {args.pairs}: every scene is in {args.restorer}'s training set")
     gains: dict[str, list[tuple[str, float]]] = {}  # variant -> [(kind, gain dB)]

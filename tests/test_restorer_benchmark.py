@@ -28,14 +28,14 @@ def pairs_file(path: Path, scene_id: str, trajectory: str, stages: int) -> Path:
     return path
 
 
-def test_held_out_clips_skip_training_scenes_and_training_scenes_keep_only_them(tmp_path):
+def test_scored_clips_skip_training_scenes_and_training_scenes_keep_only_them(tmp_path):
     trained = pairs_file(tmp_path / "corpus-003__street.npz", "corpus-003", "original", 4)
     held_out = pairs_file(tmp_path / "corpus-021__street__shift@3.npz", "corpus-021", "shift@3", 4)
     files = [trained, held_out]
 
-    clips = restorer_benchmark.held_out_clips(RESTORER, PAYLOAD, files, stages_per_run=2)
+    clips = restorer_benchmark.scored_clips(RESTORER, PAYLOAD, files, stages_per_run=2)
     assert [(kind, int(degraded.max())) for kind, degraded, _, _ in clips] == [("novel", 0), ("novel", 3)]
 
-    clips = restorer_benchmark.held_out_clips(RESTORER, PAYLOAD, files, stages_per_run=0, training_scenes=True)
+    clips = restorer_benchmark.scored_clips(RESTORER, PAYLOAD, files, stages_per_run=0, training_scenes=True)
     assert [(kind, int(degraded.max())) for kind, degraded, _, _ in clips] == [("orig", s) for s in range(4)]
     assert all(structure is None for *_, structure in clips)  # an image restorer gets no structure maps
