@@ -133,9 +133,48 @@ def test_pair_latents_are_cached_per_autoencoder_and_equal_fresh_encodings(tmp_p
     assert cache.is_file()
     assert torch.equal(fresh.target, encode_frames(first, gt))
     assert torch.equal(fresh.degraded[1], encode_frames(first, degraded[1]))
-    # A second load reads the cache (poisoned here to prove it is read) ...
-    torch.save({"gt": fresh.target + 1.0, "degraded": fresh.degraded}, cache)
-    assert torch.equal(load_pair_sequences([path], first, False, False)[0].target, fresh.target + 1.0)
+    # A second load reads the cache (poisoned here to prove it is read; fresh's latents are maps of
+    # the cache file, so they are copied before it is rewritten) ...
+    poisoned = fresh.target + 1.0
+    torch.save({"gt": poisoned, "degraded": fresh.degraded.clone()}, cache)
+    assert torch.equal(load_pair_sequences([path], first, False, False)[0].target, poisoned)
     # ... and another autoencoder gets its own latents, not those of the first.
     other = load_pair_sequences([path], second, False, False)[0]
     assert torch.equal(other.target, encode_frames(second, gt))
+
+
+def test_pair_frames_are_memory_mapped_equal_the_pairs_file_and_remade_when_stale(tmp_path):
+    import os
+
+    from recondreamer.restorer.autoencoder import Autoencoder
+    from recondreamer.restorer.config import AutoencoderConfig
+    from recondreamer.restorer.data import load_pair_sequences
+
+    rng = np.random.default_rng(1)
+    arrays = {
+        "gt": rng.integers(0, 256, size=(3, H, W, 3), dtype=np.uint8),
+        "degraded": rng.integers(0, 256, size=(2, 3, H, W, 3), dtype=np.uint8),
+        "structure": rng.integers(0, 256, size=(3, 2, H, W), dtype=np.uint8),
+        "sky": rng.random((3, H, W)) < 0.3,
+    }
+    path = tmp_path / "a__run.npz"
+    np.savez(path, stages=np.array([1, 2]), vanishing=np.zeros((3, 2)), scene_id=np.array("a"), **arrays)
+    torch.manual_seed(0)
+    autoencoder = Autoencoder(AutoencoderConfig(hidden_channels=(8, 8, 8))).eval()
+
+    seq = load_pair_sequences([path], autoencoder, True, True)[0]
+    cache = tmp_path / "a__run.arrays.pt"
+    assert cache.is_file()
+    for got, name in ((seq.target_frames, "gt"), (seq.degraded_frames, "degraded"), (seq.structure, "structure"), (seq.sky_masks, "sky")):
+        np.testing.assert_array_equal(got, arrays[name])
+        assert got.dtype == arrays[name].dtype
+    # Writing to a map (training masks copies, but a caller may not) leaves the copy on disk intact.
+    seq.degraded_frames[0, 0] = 0
+    again = load_pair_sequences([path], autoencoder, False, True)[0]
+    np.testing.assert_array_equal(again.degraded_frames, arrays["degraded"])
+    assert again.structure is None
+    # A pairs file newer than its copy, with other frames of the same shape, gets a new copy.
+    arrays["gt"] = 255 - arrays["gt"]
+    np.savez(path, stages=np.array([1, 2]), vanishing=np.zeros((3, 2)), scene_id=np.array("a"), **arrays)
+    os.utime(cache, (1, 1))
+    np.testing.assert_array_equal(load_pair_sequences([path], autoencoder, False, True)[0].target_frames, arrays["gt"])
