@@ -21,7 +21,7 @@ from recondreamer.restorer.config import (
     config_from_dict,
     config_to_dict,
 )
-from recondreamer.restorer.device import module_device
+from recondreamer.restorer.device import module_device, use_fast_conv_layout
 from recondreamer.restorer.diffusion import NoiseSchedule
 from recondreamer.restorer.unet import LatentUNet
 
@@ -40,7 +40,7 @@ def autoencoder_payload(autoencoder: Autoencoder) -> dict:
 
 def load_autoencoder(path: str | os.PathLike, device: torch.device | str = "cpu") -> tuple[Autoencoder, dict]:
     payload = load_checkpoint(path, "autoencoder")
-    return autoencoder_from_payload(payload).to(device), payload
+    return use_fast_conv_layout(autoencoder_from_payload(payload).to(device)), payload
 
 
 @dataclass
@@ -65,9 +65,10 @@ class GenerativeModel:
         return module_device(self.unet)
 
     def to(self, device: torch.device | str) -> GenerativeModel:
-        """Move the UNet and the autoencoder to ``device`` (in place); returns the model."""
-        self.unet.to(device)
-        self.autoencoder.to(device)
+        """Move the UNet and the autoencoder to ``device`` (in place; channels-last convs on the
+        CPU, ``device.use_fast_conv_layout``); returns the model."""
+        use_fast_conv_layout(self.unet.to(device))
+        use_fast_conv_layout(self.autoencoder.to(device))
         return self
 
 

@@ -32,7 +32,7 @@ from recondreamer.restorer.config import (
     config_to_dict,
 )
 from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.device import module_device
+from recondreamer.restorer.device import module_device, use_fast_conv_layout
 from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
 from recondreamer.restorer.masks import sample_clip_masks
 from recondreamer.restorer.models import (
@@ -116,6 +116,7 @@ def run_training_loop(
     """
     if not 0.0 <= ema_decay < 1.0:
         raise ValueError(f"ema_decay must be in [0, 1), got {ema_decay}")
+    use_fast_conv_layout(module)  # before the optimiser and the average copy its parameters' layout
     optimizer = torch.optim.AdamW(module.parameters(), lr=learning_rate, weight_decay=weight_decay)
     ema = None
     if ema_decay > 0.0:
