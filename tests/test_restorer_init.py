@@ -65,3 +65,68 @@ def test_a_start_that_does_not_fit_the_job_is_refused(tmp_path):
                        tmp_path / "first.pt")
     with pytest.raises(CheckpointError, match="does not exist"):
         _train(world, tmp_path / "missing.pt", init_from=tmp_path / "nothing.pt")
+
+
+def _outputs(payload: dict, blocks: int | None = None) -> torch.Tensor:
+    """The UNet output of a restorer checkpoint on fixed random inputs."""
+    from test_restorer_models import random_inputs
+
+    from recondreamer.restorer.models import model_from_payload
+
+    unet = model_from_payload(payload).unet
+    inputs = random_inputs("sd")
+    with torch.no_grad():
+        return unet(inputs["noisy"], inputs["timesteps"], inputs["reference"], degraded=torch.ones_like(inputs["noisy"]))
+
+
+def test_a_deeper_restorer_grown_from_another_starts_with_its_output_and_keeps_growing(tmp_path):
+    world = tiny_model("sd")
+    _train(world, tmp_path / "first.pt", steps=3)
+    first = load_checkpoint(tmp_path / "first.pt", "restorer")
+    assert first["config"]["unet"]["blocks_per_level"] == 1
+    # Learning rate 0: what the grown restorer computes is what the blocks it started with compute.
+    train = dataclasses.replace(TRAIN, steps=2, learning_rate=0.0)
+    train_restorer(world, "sd", _sequences("bb"), train, None, RestoreConfig(), tmp_path / "grown.pt", "wm.pt", "residual", "cpu",
+                   tmp_path / "first.pt", blocks_per_level=3)
+    grown = load_checkpoint(tmp_path / "grown.pt", "restorer")
+    assert grown["config"]["unet"]["blocks_per_level"] == 3
+    assert any(name.startswith("down_extra.0.1.") for name in grown["state"]) and any(name.startswith("up_extra.") for name in grown["state"])
+    assert all(torch.equal(first["state"][name], grown["state"][name]) for name in first["state"])
+    torch.testing.assert_close(_outputs(grown), _outputs(first), rtol=0, atol=1e-6)
+    # Trained on, the extra blocks change the output; without --blocks-per-level a job keeps its start's depth.
+    _train(world, tmp_path / "on.pt", init_from=tmp_path / "grown.pt", steps=3)
+    on = load_checkpoint(tmp_path / "on.pt", "restorer")
+    assert on["config"]["unet"]["blocks_per_level"] == 3
+    assert not torch.allclose(_outputs(on), _outputs(grown), atol=1e-4)
+    # A restorer cannot shrink.
+    with pytest.raises(CheckpointError, match="cannot start"):
+        train_restorer(world, "sd", _sequences("a"), TRAIN, None, RestoreConfig(), tmp_path / "shrunk.pt", "wm.pt", "residual", "cpu",
+                       tmp_path / "grown.pt", blocks_per_level=2)
+
+
+def test_a_world_model_grows_into_a_deeper_restorer_that_starts_as_the_world_model(tmp_path):
+    from recondreamer.restorer.models import restorer_unet_from_world_model
+
+    world = tiny_model("sd")
+    shallow, deep = restorer_unet_from_world_model(world, "sd"), restorer_unet_from_world_model(world, "sd", blocks_per_level=2)
+    assert deep.config.blocks_per_level == 2 and len(deep.down_extra[0]) == 1 and len(shallow.down_extra[0]) == 0
+    from test_restorer_models import random_inputs
+
+    inputs = random_inputs("sd")
+    degraded = torch.randn_like(inputs["noisy"])
+    with torch.no_grad():
+        torch.testing.assert_close(
+            deep(inputs["noisy"], inputs["timesteps"], inputs["reference"], degraded=degraded),
+            world.unet(inputs["noisy"], inputs["timesteps"], inputs["reference"]),
+            rtol=0, atol=1e-6,
+        )
+    with pytest.raises(CheckpointError, match="cannot start from a world model"):
+        restorer_unet_from_world_model(dataclasses.replace(world, unet_config=dataclasses.replace(world.unet_config, blocks_per_level=2)), "sd", 1)
+
+
+def test_train_restorer_refuses_a_block_count_below_one(tmp_path, capsys):
+    from recondreamer.cli import main
+
+    code = main(["train-restorer", "--arch", "sd", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(tmp_path),
+                 "--out", str(tmp_path / "r.pt"), "--blocks-per-level", "0"])
+    assert code != 0 and "--blocks-per-level must be >= 1" in capsys.readouterr().err

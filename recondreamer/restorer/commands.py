@@ -74,6 +74,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "and autoencoder; default: the world model)",
     )
     p.add_argument(
+        "--blocks-per-level", type=int, default=None, metavar="N",
+        help="residual blocks per UNet level, down and up (default: the --init-restorer's, else the world model's: 1); blocks past those "
+        "start as the identity, so a deeper restorer can be grown from a trained one",
+    )
+    p.add_argument(
         "--pixel-loss-weight", type=float, default=None,
         help="weight of an image-space loss (MSE of the decoded one-step sample against ground truth, [-1,1] pixel "
         "units) added to the diffusion loss; 0 = diffusion loss only (default 0)",
@@ -171,6 +176,9 @@ def _check_train_options(args: argparse.Namespace) -> None:
     pixel_loss_weight = getattr(args, "pixel_loss_weight", None)  # train-restorer only
     if pixel_loss_weight is not None and pixel_loss_weight < 0.0:
         raise RecondreamerError(f"--pixel-loss-weight must be >= 0, got {pixel_loss_weight}")
+    blocks_per_level = getattr(args, "blocks_per_level", None)  # train-restorer only
+    if blocks_per_level is not None and blocks_per_level < 1:
+        raise RecondreamerError(f"--blocks-per-level must be >= 1, got {blocks_per_level}")
 
 
 def _train_config(args: argparse.Namespace, base=None):
@@ -287,7 +295,10 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     restore = dataclasses.replace(restore, **{k: v for k, v in overrides.items() if v is not None})
     if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1:
         raise RecondreamerError(f"--strength must be in (0, 1] and --sample-steps >= 1, got {restore.strength} and {restore.sample_steps}")
-    stats = train_restorer(world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device, args.init_restorer)
+    stats = train_restorer(
+        world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device, args.init_restorer,
+        args.blocks_per_level,
+    )
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 

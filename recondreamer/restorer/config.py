@@ -57,6 +57,9 @@ class UNetConfig:
     arch: str = "dd2"  # one of ARCHS
     latent_channels: int = 4
     channels: tuple[int, ...] = (32, 64, 64)  # one entry per resolution level, finest first
+    # Residual blocks per level on the way down and on the way up; the blocks past the first start
+    # as the identity, so a UNet can be grown from a trained shallower one (unet.identity_res_block).
+    blocks_per_level: int = 1
     attention_levels: tuple[bool, ...] = (False, False, True)  # spatial self-attention per level
     temporal_levels: tuple[bool, ...] = (True, True, True)  # temporal attention per level (video archs)
     num_heads: int = 4

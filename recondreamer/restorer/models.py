@@ -112,20 +112,38 @@ def load_generative_model(path: str | os.PathLike, kind: str, device: torch.devi
     return model_from_payload(load_checkpoint(path, kind), device)
 
 
-def restorer_unet_from_world_model(world: GenerativeModel, arch: str) -> LatentUNet:
+def restorer_unet_from_world_model(world: GenerativeModel, arch: str, blocks_per_level: int | None = None) -> LatentUNet:
     """The world model's UNet with a zero-initialised degraded-video input branch.
 
     ``dd2_mask`` is fine-tuned from a ``dd2`` world model, every other arch from its own.
+    ``blocks_per_level`` (default: the world model's) may add residual blocks per level; they
+    start as the identity, so the restorer still starts from the world model's output.
     """
     expected_world_arch = "dd2" if arch == "dd2_mask" else arch
     if world.arch != expected_world_arch:
         raise CheckpointError(f"restorer arch {arch!r} is fine-tuned from a {expected_world_arch!r} world model, got {world.arch!r}")
-    config = dataclasses.replace(world.unet_config, arch=arch, degraded_condition=True)
+    blocks = world.unet_config.blocks_per_level if blocks_per_level is None else blocks_per_level
+    if blocks < world.unet_config.blocks_per_level:
+        raise CheckpointError(
+            f"a restorer of {blocks} residual blocks per level cannot start from a world model of {world.unet_config.blocks_per_level}"
+        )
+    config = dataclasses.replace(world.unet_config, arch=arch, degraded_condition=True, blocks_per_level=blocks)
     unet = LatentUNet(config)
-    missing, unexpected = unet.load_state_dict(world.unet.state_dict(), strict=False)
-    if unexpected or any(not key.startswith("degraded_in.") for key in missing):
-        raise CheckpointError(f"world model weights do not fit the restorer: missing {missing}, unexpected {unexpected}")
+    load_grown_state(unet, world.unet.state_dict(), allowed_missing=("degraded_in.",), source="world model")
     return unet
+
+
+GROWN_BLOCK_PREFIXES = ("down_extra.", "up_extra.")
+
+
+def load_grown_state(unet: LatentUNet, state: dict, allowed_missing: tuple[str, ...], source: str) -> None:
+    """Load ``state`` into ``unet``, which may have more residual blocks per level than the UNet the
+    state came from (those stay as built: the identity); any other missing or unexpected weight
+    is a CheckpointError naming ``source``."""
+    missing, unexpected = unet.load_state_dict(state, strict=False)
+    allowed = allowed_missing + GROWN_BLOCK_PREFIXES
+    if unexpected or any(not key.startswith(allowed) for key in missing):
+        raise CheckpointError(f"{source} weights do not fit the restorer: missing {missing}, unexpected {unexpected}")
 
 
 def count_parameters(module: torch.nn.Module) -> int:

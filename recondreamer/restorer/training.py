@@ -39,6 +39,7 @@ from recondreamer.restorer.models import (
     GenerativeModel,
     autoencoder_payload,
     count_parameters,
+    load_grown_state,
     model_config_dict,
     restorer_unet_from_world_model,
 )
@@ -396,23 +397,24 @@ def training_totals(metrics: dict) -> tuple[int, float]:
     return metrics.get("total_steps", steps), metrics.get("total_cpu_minutes", metrics.get("cpu_ms_per_step", float("nan")) * steps / 60000.0)
 
 
-def initial_restorer_payload(
-    path: str | os.PathLike, arch: str, unet_config: UNetConfig, autoencoder: Autoencoder, target_space: str
-) -> dict:
-    """A restorer checkpoint a fine-tuning starts from, checked to fit the job: same arch and UNet
-    shape, built on the same autoencoder (its latents are the job's) and the same target space."""
+def check_initial_restorer(
+    path: str | os.PathLike, payload: dict, arch: str, unet_config: UNetConfig, autoencoder: Autoencoder, target_space: str
+) -> None:
+    """A restorer checkpoint a fine-tuning starts from must fit the job: same arch and UNet shape
+    (or the same with more residual blocks per level), built on the same autoencoder (its latents
+    are the job's) and the same target space; else a CheckpointError naming ``path``."""
     from recondreamer.restorer.data import autoencoder_digest
     from recondreamer.restorer.models import model_from_payload
 
-    payload = load_checkpoint(path, "restorer")
     initial = model_from_payload(payload)
-    if initial.arch != arch or initial.unet_config != unet_config:
+    # A job may grow the UNet by residual blocks (they start as the identity), nothing else.
+    grown = dataclasses.replace(initial.unet_config, blocks_per_level=unet_config.blocks_per_level)
+    if initial.arch != arch or grown != unet_config or unet_config.blocks_per_level < initial.unet_config.blocks_per_level:
         raise CheckpointError(f"{path}: a {initial.arch} restorer of UNet {initial.unet_config} cannot start a {arch} restorer of UNet {unet_config}")
     if autoencoder_digest(initial.autoencoder) != autoencoder_digest(autoencoder):
         raise CheckpointError(f"{path}: restorer built on another autoencoder than the world model's")
     if initial.diffusion_config.target_space != target_space:
         raise CheckpointError(f"{path}: restorer diffuses in the {initial.diffusion_config.target_space} space, this job in the {target_space} space")
-    return payload
 
 
 def residual_scale(sequences: list[Sequence]) -> float:
@@ -476,6 +478,7 @@ def train_restorer(
     target_space: str = "residual",
     device: torch.device | str = "cpu",
     init_from: str | os.PathLike | None = None,
+    blocks_per_level: int | None = None,
 ) -> dict:
     """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition.
 
@@ -484,15 +487,19 @@ def train_restorer(
     Trains on ``device``, where ``world`` (whose autoencoder re-encodes masked frames) is moved.
     ``init_from`` starts from a restorer checkpoint's weights instead of the world model's (to
     train a restorer further, e.g. with other crops or losses); the metrics then also hold the
-    total steps and CPU minutes of both jobs.
+    total steps and CPU minutes of both jobs. ``blocks_per_level`` (default: ``init_from``'s, else the world model's)
+    deepens the UNet by residual blocks that start as the identity, so a restorer can be grown
+    from a shallower one (``init_from``) without losing what it learned.
     """
     torch.manual_seed(train.seed)
     world.to(device)
-    unet = restorer_unet_from_world_model(world, arch)
-    initial = None  # the restorer checkpoint this job starts from, if any
-    if init_from is not None:
-        initial = initial_restorer_payload(init_from, arch, unet.config, world.autoencoder, target_space)
-        unet.load_state_dict(initial["state"])
+    initial = None if init_from is None else load_checkpoint(init_from, "restorer")  # the restorer this job starts from
+    if blocks_per_level is None and initial is not None:
+        blocks_per_level = initial["config"]["unet"].get("blocks_per_level", 1)
+    unet = restorer_unet_from_world_model(world, arch, blocks_per_level)
+    if initial is not None:
+        check_initial_restorer(init_from, initial, arch, unet.config, world.autoencoder, target_space)
+        load_grown_state(unet, initial["state"], allowed_missing=(), source=str(init_from))
     unet = unet.to(device)
     scale = residual_scale(sequences) if target_space == "residual" else 1.0
     diffusion_config = dataclasses.replace(world.diffusion_config, target_space=target_space, residual_scale=scale)

@@ -10,6 +10,9 @@ spatial location. Conditions:
 - degraded-video latent ``(B, T, c, h, w)`` (restorers): its own input conv, zero-initialised, so a
   restorer made from a world model computes exactly the world model's output at step 0.
 
+``blocks_per_level`` > 1 adds residual blocks after the first of each level, down and up; they
+start as the identity, so a deeper UNet grown from a trained one computes what it did at first.
+
 Stock diffusers UNets cost seconds per step on the project's 2-core CPU even when tiny; this one
 keeps 3 levels, one residual block per level and attention only where the map is small.
 """
@@ -60,6 +63,15 @@ class ResBlock(nn.Module):
         h = h + self.time_proj(F.silu(temb))[:, :, None, None]
         h = self.conv2(F.silu(self.norm2(h)))
         return h + self.skip(x)
+
+
+def identity_res_block(channels: int, time_embed_dim: int) -> ResBlock:
+    """A residual block that starts as the identity: its last conv is zero-initialised (as guided
+    diffusion initialises every block), so ``h = 0`` and the block returns its input. Added to a
+    trained UNet it leaves the UNet's output unchanged, and training then makes use of it."""
+    block = ResBlock(channels, channels, time_embed_dim)
+    zero_module(block.conv2)
+    return block
 
 
 class SpatialAttention(nn.Module):
@@ -154,13 +166,18 @@ class LatentUNet(nn.Module):
         if config.uses_structure and config.structure_channels <= 0:
             raise ValueError(f"arch {config.arch!r} needs structure_channels > 0")
 
+        if config.blocks_per_level < 1:
+            raise ValueError(f"blocks_per_level must be >= 1, got {config.blocks_per_level}")
+        extra_blocks = config.blocks_per_level - 1
         self.down_res = nn.ModuleList()
+        self.down_extra = nn.ModuleList()  # per level: the blocks after the first (identity at start)
         self.down_attn = nn.ModuleList()
         self.down_temporal = nn.ModuleList()
         self.downsamplers = nn.ModuleList()
         previous = channels[0]
         for level in range(levels):
             self.down_res.append(ResBlock(previous, channels[level], embed))
+            self.down_extra.append(nn.ModuleList(identity_res_block(channels[level], embed) for _ in range(extra_blocks)))
             self.down_attn.append(SpatialAttention(channels[level], config.num_heads) if config.attention_levels[level] else nn.Identity())
             self.down_temporal.append(TemporalAttention(channels[level], config.num_heads) if use_temporal[level] else None)
             if level < levels - 1:
@@ -174,10 +191,12 @@ class LatentUNet(nn.Module):
 
         self.upsamplers = nn.ModuleList()
         self.up_res = nn.ModuleList()
+        self.up_extra = nn.ModuleList()
         self.up_attn = nn.ModuleList()
         self.up_temporal = nn.ModuleList()
         for level in reversed(range(levels)):
             self.up_res.append(ResBlock(previous + channels[level], channels[level], embed))
+            self.up_extra.append(nn.ModuleList(identity_res_block(channels[level], embed) for _ in range(extra_blocks)))
             self.up_attn.append(SpatialAttention(channels[level], config.num_heads) if config.attention_levels[level] else nn.Identity())
             self.up_temporal.append(TemporalAttention(channels[level], config.num_heads) if use_temporal[level] else None)
             if level > 0:
@@ -216,6 +235,8 @@ class LatentUNet(nn.Module):
         skips = []
         for level in range(len(self.down_res)):
             x = self.down_res[level](x, temb)
+            for block in self.down_extra[level]:
+                x = block(x, temb)
             x = self.down_attn[level](x)
             if self.down_temporal[level] is not None:
                 x = self.down_temporal[level](x, t)
@@ -231,6 +252,8 @@ class LatentUNet(nn.Module):
 
         for index in range(len(self.up_res)):
             x = self.up_res[index](torch.cat([x, skips.pop()], dim=1), temb)
+            for block in self.up_extra[index]:
+                x = block(x, temb)
             x = self.up_attn[index](x)
             if self.up_temporal[index] is not None:
                 x = self.up_temporal[index](x, t)
