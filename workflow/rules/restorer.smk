@@ -58,6 +58,7 @@ rule train_restorer:
                 ("--timestep-power", "timestep_power"),
                 ("--pixel-loss-weight", "pixel_loss_weight"),
                 ("--ema-decay", "ema_decay"),
+                ("--blocks-per-level", "blocks_per_level"),
                 ("--seed", "seed"),
             )
         )
