@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8, -9 and -10 runs under results/restorer-dev/s8/, s9/, s10/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -13 runs under results/restorer-dev/s8/ .. s13/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -192,3 +192,46 @@ run "$S11/scenes58_from6500_1500.pt" "$S11/scenes58_from6500_1500.log" $RC train
   --pairs $PAIRS58 --init-restorer "$S11/scenes58_from4000_2500.pt" --out "$S11/scenes58_from6500_1500.pt" --steps 1500 --ema-decay 0.997
 python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
   --restorer dd2_mask="$S11/scenes58_from6500_1500.pt" --threads 2 | tee "$S11/gate_scenes58_8000.txt"
+# Session 13 (docs/restorer.md, "Results (session 13)"): many more training scenes (corpus-000..019,
+# 023..200: 198 scenes, street runs and pairs as above, their latents primed once), a second held-out
+# set (corpus-201..206, never trained on), and one dd2_mask restorer trained from the world model on a
+# growing set of scenes in stages (each stage starts from the last one's weights, --init-restorer):
+# the session made the scenes while the restorer trained, and each stage took the scenes made by then.
+S13=$DEV/s13
+mkdir -p "$S13" "$DEV/pairs-heldout2"
+scenes() { for i in "$@"; do printf "corpus-%03d\n" "$i"; done; }
+for scene in $(seq -f "corpus-%03g" 61 200) $(seq -f "corpus-%03g" 201 206); do
+  dest=pairs-train; [[ $scene > corpus-200 ]] && dest=pairs-heldout2
+  run "results/corpus/$scene" "$DEV/logs/synth_$scene.log" $RC synth --seed $((10000 + 10#${scene#corpus-})) --preset default \
+    --scene-id "$scene" --out "results/corpus/$scene"
+  run "$DEV/recon/$scene/street/model.pt" "$DEV/logs/recon_$scene.log" $RC train-recon --scene "results/corpus/$scene" \
+    --model street --preset default --seed 0 --threads 1 --out "$DEV/recon/$scene/street"
+  run "$DEV/$dest/${scene}__street.npz" "$DEV/logs/pairs_$scene.log" $RC make-pairs --run "$DEV/recon/$scene/street" \
+    --out "$DEV/$dest" --stages 4 --trajectories $TRAJECTORIES --threads 1
+done
+pairs_of() { for scene in "$@"; do ls "$DEV/pairs-train/${scene}"__*.npz; done; }
+score() {  # score NAME: gate table of $S13/NAME.pt on both held-out sets
+  python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+    --restorer dd2_mask="$S13/$1.pt" --threads 1 | tee "$S13/gate_$1.txt"
+  python benchmarks/restorer.py --pairs "$DEV/pairs-heldout2" --stages-per-run 2 --steps 1 \
+    --restorer dd2_mask="$S13/$1.pt" --threads 1 | tee "$S13/heldout2_$1.txt"
+}
+STAGE1=$(pairs_of $(scenes $(seq 0 19) $(seq 23 39) $(seq 177 200)))   # 61 scenes
+run "$S13/stage1_3000.pt" "$S13/stage1_3000.log" $RC train-restorer $WHOLE --pairs $STAGE1 \
+  --out "$S13/stage1_3000.pt" --steps 3000 --ema-decay 0.998
+score stage1_3000
+# 105 scenes and the first file of corpus-084 (its other three were still being rendered)
+STAGE2="$(pairs_of $(scenes $(seq 0 19) $(seq 23 83) $(seq 177 200))) $DEV/pairs-train/corpus-084__street.npz"
+run "$S13/stage2_4000.pt" "$S13/stage2_4000.log" $RC train-restorer $WHOLE --pairs $STAGE2 \
+  --init-restorer "$S13/stage1_3000.pt" --out "$S13/stage2_4000.pt" --steps 4000 --ema-decay 0.999
+score stage2_4000
+# Depth A/B from stage 2 on the same 151 scenes, same seed and steps: the restorer as it is (1 residual
+# block per level) against one grown to 3 blocks per level (--blocks-per-level 3, added blocks start as
+# the identity).
+STAGE3=$(pairs_of $(scenes $(seq 0 19) $(seq 23 129) $(seq 177 200)))   # 151 scenes
+for blocks in 1 3; do
+  name=stage3_3000; [ "$blocks" = 1 ] || name=stage3_blocks${blocks}_3000
+  run "$S13/$name.pt" "$S13/$name.log" $RC train-restorer $WHOLE --pairs $STAGE3 --blocks-per-level $blocks \
+    --init-restorer "$S13/stage2_4000.pt" --out "$S13/$name.pt" --steps 3000 --ema-decay 0.998
+  score $name
+done
