@@ -235,3 +235,8 @@ for blocks in 1 3; do
     --init-restorer "$S13/stage2_4000.pt" --out "$S13/$name.pt" --steps 3000 --ema-decay 0.998
   score $name
 done
+# Stage 4: 5000 more steps from the 1-block stage 3 on all 157 scenes' pairs.
+STAGE4=$(pairs_of $(scenes $(seq 0 19) $(seq 23 135) $(seq 177 200)))   # 157 scenes
+run "$S13/stage4_5000.pt" "$S13/stage4_5000.log" $RC train-restorer $WHOLE --pairs $STAGE4 \
+  --init-restorer "$S13/stage3_3000.pt" --out "$S13/stage4_5000.pt" --steps 5000 --ema-decay 0.999
+score stage4_5000
