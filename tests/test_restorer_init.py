@@ -67,7 +67,7 @@ def test_a_start_that_does_not_fit_the_job_is_refused(tmp_path):
         _train(world, tmp_path / "missing.pt", init_from=tmp_path / "nothing.pt")
 
 
-def _outputs(payload: dict, blocks: int | None = None) -> torch.Tensor:
+def _outputs(payload: dict) -> torch.Tensor:
     """The UNet output of a restorer checkpoint on fixed random inputs."""
     from test_restorer_models import random_inputs
 

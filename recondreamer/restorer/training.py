@@ -29,6 +29,7 @@ from recondreamer.restorer.config import (
     RestoreConfig,
     TrainConfig,
     UNetConfig,
+    config_from_dict,
     config_to_dict,
 )
 from recondreamer.restorer.data import Sequence
@@ -495,7 +496,7 @@ def train_restorer(
     world.to(device)
     initial = None if init_from is None else load_checkpoint(init_from, "restorer")  # the restorer this job starts from
     if blocks_per_level is None and initial is not None:
-        blocks_per_level = initial["config"]["unet"].get("blocks_per_level", 1)
+        blocks_per_level = config_from_dict(UNetConfig, initial["config"]["unet"]).blocks_per_level
     unet = restorer_unet_from_world_model(world, arch, blocks_per_level)
     if initial is not None:
         check_initial_restorer(init_from, initial, arch, unet.config, world.autoencoder, target_space)

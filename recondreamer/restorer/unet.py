@@ -14,7 +14,8 @@ spatial location. Conditions:
 start as the identity, so a deeper UNet grown from a trained one computes what it did at first.
 
 Stock diffusers UNets cost seconds per step on the project's 2-core CPU even when tiny; this one
-keeps 3 levels, one residual block per level and attention only where the map is small.
+keeps 3 levels, one residual block per level by default (``blocks_per_level``) and attention only
+where the map is small.
 """
 
 from __future__ import annotations
