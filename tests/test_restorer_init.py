@@ -130,3 +130,37 @@ def test_train_restorer_refuses_a_block_count_below_one(tmp_path, capsys):
     code = main(["train-restorer", "--arch", "sd", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(tmp_path),
                  "--out", str(tmp_path / "r.pt"), "--blocks-per-level", "0"])
     assert code != 0 and "--blocks-per-level must be >= 1" in capsys.readouterr().err
+
+
+def test_a_resume_file_written_before_a_config_field_existed_resumes_when_the_job_uses_its_default(tmp_path, monkeypatch, caplog):
+    import recondreamer.restorer.training as training
+    from recondreamer.restorer.checkpoint import save_checkpoint
+    from recondreamer.restorer.training import resume_path
+
+    world = tiny_model("sd")
+    # A job stopped after its first checkpoint (step 1): its resume file stays behind.
+    monkeypatch.setattr(training, "finish_job", lambda out: None)
+    _train(world, tmp_path / "r.pt", checkpoint_every=1)
+    monkeypatch.undo()
+    state_file = resume_path(tmp_path / "r.pt")
+    state = load_checkpoint(state_file, "training_state")
+    assert state["step"] == 1
+
+    def rewrite(unet_config: dict) -> None:
+        extra = {key: value for key, value in state.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
+        save_checkpoint(state_file, "training_state", state["arch"], {**state["config"], "unet": unet_config}, state["state"], **extra)
+
+    # As session 13's resume files were: written before UNetConfig.blocks_per_level existed.
+    rewrite({key: value for key, value in state["config"]["unet"].items() if key != "blocks_per_level"})
+    with caplog.at_level("INFO", logger="recondreamer.restorer.training"):
+        _train(world, tmp_path / "r.pt", checkpoint_every=1)
+    assert "resuming from" in caplog.text and "at step 1" in caplog.text
+    assert not state_file.exists()
+    # A resume file of another depth is still another job.
+    monkeypatch.setattr(training, "finish_job", lambda out: None)
+    _train(world, tmp_path / "r.pt", checkpoint_every=1)
+    monkeypatch.undo()
+    state = load_checkpoint(state_file, "training_state")
+    rewrite({**state["config"]["unet"], "blocks_per_level": 2})
+    with pytest.raises(CheckpointError, match="different job configuration"):
+        _train(world, tmp_path / "r.pt", checkpoint_every=1)

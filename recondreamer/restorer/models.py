@@ -84,13 +84,32 @@ def model_config_dict(model: GenerativeModel) -> dict:
     }
 
 
+def diffusion_config_from_dict(values: dict) -> DiffusionConfig:
+    # Checkpoints written before the prediction target was configurable were trained on eps.
+    return config_from_dict(DiffusionConfig, {"prediction": "epsilon", **values})
+
+
+def read_model_config(config: dict) -> dict:
+    """``config`` (a model config dict, or a job identity holding one) as a checkpoint load reads
+    it: each config section rebuilt through its dataclass, so a field the dict lacks (it was
+    written before the field existed) takes the value ``model_from_payload`` gives it. Other
+    entries pass through unchanged."""
+    return {
+        **config,
+        "unet": config_to_dict(config_from_dict(UNetConfig, config["unet"])),
+        "diffusion": config_to_dict(diffusion_config_from_dict(config["diffusion"])),
+        "train": config_to_dict(config_from_dict(TrainConfig, config["train"])),
+        "masks": None if config.get("masks") is None else config_to_dict(config_from_dict(MaskConfig, config["masks"])),
+        "restore": config_to_dict(config_from_dict(RestoreConfig, config.get("restore") or {})),
+    }
+
+
 def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> GenerativeModel:
     config = payload["config"]
     unet_config = config_from_dict(UNetConfig, config["unet"])
     unet = LatentUNet(unet_config)
     unet.load_state_dict(payload["state"])
-    # Checkpoints written before the prediction target was configurable were trained on eps.
-    diffusion_config = config_from_dict(DiffusionConfig, {"prediction": "epsilon", **config["diffusion"]})
+    diffusion_config = diffusion_config_from_dict(config["diffusion"])
     return GenerativeModel(
         kind=payload["kind"],
         arch=payload["arch"],

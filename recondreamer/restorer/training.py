@@ -42,6 +42,7 @@ from recondreamer.restorer.models import (
     count_parameters,
     load_grown_state,
     model_config_dict,
+    read_model_config,
     restorer_unet_from_world_model,
 )
 from recondreamer.restorer.unet import LatentUNet
@@ -107,10 +108,13 @@ def run_training_loop(
     seed: int,
     weight_decay: float = 0.0,
     ema_decay: float = 0.0,
+    read_identity: Callable[[dict], dict] | None = None,
 ) -> dict:
     """Optimise ``module`` with AdamW for ``steps`` steps, resuming from ``OUT.resume.pt``.
 
-    ``job_identity`` (arch and configs) must match the resume file's for it to be used; the
+    ``job_identity`` (arch and configs) must match the resume file's for it to be used, both
+    read through ``read_identity`` (e.g. ``models.read_model_config``, so a resume file written
+    before a config field existed still matches when the job uses that field's default); the
     step count may differ (a job can be extended or cut short on resume: the learning-rate
     schedule then follows the new total). With ``ema_decay`` > 0 an exponential moving average
     of the weights is kept from the first step (torch's ``AveragedModel``) and ``module`` ends
@@ -136,7 +140,8 @@ def run_training_loop(
     state_file = resume_path(out)
     if state_file.exists():
         state = load_checkpoint(state_file, "training_state")
-        if _without_steps(state["config"]) != _without_steps(job_identity):
+        read = read_identity or (lambda identity: identity)
+        if _without_steps(read(state["config"])) != _without_steps(read(job_identity)):
             raise CheckpointError(f"{state_file}: resume file of a different job configuration; delete it to start afresh")
         module.load_state_dict(state["state"])
         optimizer.load_state_dict(state["optimizer"])
@@ -460,7 +465,7 @@ def pretrain_world_model(
     stats = run_training_loop(
         f"pretrain {unet_config.arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
         {"kind": "world_model", "arch": unet_config.arch, **config}, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
-        train.ema_decay,
+        train.ema_decay, read_model_config,
     )
     save_checkpoint(out, "world_model", unet_config.arch, config, unet.state_dict(), autoencoder=autoencoder_payload(autoencoder), metrics=stats)
     finish_job(out)
@@ -534,7 +539,7 @@ def train_restorer(
         identity["init_from"] = str(init_from)
     stats = run_training_loop(
         f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
-        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay, train.ema_decay,
+        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay, train.ema_decay, read_model_config,
     )
     stats["total_steps"], stats["total_cpu_minutes"] = training_totals(stats)
     scenes = {seq.scene_id for seq in sequences}
