@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -13 runs under results/restorer-dev/s8/ .. s13/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -15 runs under results/restorer-dev/s8/ .. s15/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -240,3 +240,15 @@ STAGE4=$(pairs_of $(scenes $(seq 0 19) $(seq 23 135) $(seq 177 200)))   # 157 sc
 run "$S13/stage4_5000.pt" "$S13/stage4_5000.log" $RC train-restorer $WHOLE --pairs $STAGE4 \
   --init-restorer "$S13/stage3_3000.pt" --out "$S13/stage4_5000.pt" --steps 5000 --ema-decay 0.999
 score stage4_5000
+
+# Session 15 (docs/restorer.md, "Results (session 15)"): the baseline of the start-noise probes, a
+# 1000-step whole-latent dd2_mask restorer on the 13 scenes' pairs, plain and averaged over seeds.
+# (The two zero-start probes were not kept in the code: they did not help.)
+S15=$DEV/s15
+mkdir -p "$S15"
+run "$S15/baseline_1000.pt" "$S15/baseline_1000.log" $RC train-restorer --arch dd2_mask --world-model "$WM/wm_dd2.pt" \
+  --pairs $PAIRS --out "$S15/baseline_1000.pt" --steps 1000 --crop 0 0 --ema-decay 0.995 $RESTORER_OPTIONS
+python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
+  --restorer dd2_mask="$S15/baseline_1000.pt" | tee "$S15/gate_baseline_1000.txt"
+python benchmarks/restorer_variants.py --restorer "$S15/baseline_1000.pt" --pairs "$DEV/pairs-heldout" \
+  --stages-per-run 2 --seeds 4 --gains 0.8 | tee "$S15/variants_baseline_1000.txt"
