@@ -84,45 +84,44 @@ def model_config_dict(model: GenerativeModel) -> dict:
     }
 
 
-def diffusion_config_from_dict(values: dict) -> DiffusionConfig:
-    # Checkpoints written before the prediction target was configurable were trained on eps.
-    return config_from_dict(DiffusionConfig, {"prediction": "epsilon", **values})
+def config_sections(config: dict) -> dict:
+    """The config dataclasses of a model config dict (or of a job identity holding one), section by
+    section ("masks" may be None): a field a section lacks, because it was written before the field
+    existed, takes its default, or the value it had before it became configurable."""
+    return {
+        "unet": config_from_dict(UNetConfig, config["unet"]),
+        # Checkpoints written before the prediction target was configurable were trained on eps.
+        "diffusion": config_from_dict(DiffusionConfig, {"prediction": "epsilon", **config["diffusion"]}),
+        "train": config_from_dict(TrainConfig, config["train"]),
+        "masks": None if config.get("masks") is None else config_from_dict(MaskConfig, config["masks"]),
+        "restore": config_from_dict(RestoreConfig, config.get("restore") or {}),
+    }
 
 
 def read_model_config(config: dict) -> dict:
-    """``config`` (a model config dict, or a job identity holding one) as a checkpoint load reads
-    it: each config section rebuilt through its dataclass, so a field the dict lacks (it was
-    written before the field existed) takes the value ``model_from_payload`` gives it. Other
-    entries pass through unchanged."""
-    return {
-        **config,
-        "unet": config_to_dict(config_from_dict(UNetConfig, config["unet"])),
-        "diffusion": config_to_dict(diffusion_config_from_dict(config["diffusion"])),
-        "train": config_to_dict(config_from_dict(TrainConfig, config["train"])),
-        "masks": None if config.get("masks") is None else config_to_dict(config_from_dict(MaskConfig, config["masks"])),
-        "restore": config_to_dict(config_from_dict(RestoreConfig, config.get("restore") or {})),
-    }
+    """``config`` as a checkpoint load reads it: every section rebuilt through ``config_sections``;
+    other entries pass through unchanged."""
+    return {**config, **{name: None if section is None else config_to_dict(section) for name, section in config_sections(config).items()}}
 
 
 def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> GenerativeModel:
     config = payload["config"]
-    unet_config = config_from_dict(UNetConfig, config["unet"])
-    unet = LatentUNet(unet_config)
+    sections = config_sections(config)
+    unet = LatentUNet(sections["unet"])
     unet.load_state_dict(payload["state"])
-    diffusion_config = diffusion_config_from_dict(config["diffusion"])
     return GenerativeModel(
         kind=payload["kind"],
         arch=payload["arch"],
         unet=unet.eval(),
         autoencoder=autoencoder_from_payload(payload["autoencoder"]),
-        schedule=NoiseSchedule(diffusion_config),
-        unet_config=unet_config,
-        diffusion_config=diffusion_config,
-        train_config=config_from_dict(TrainConfig, config["train"]),
+        schedule=NoiseSchedule(sections["diffusion"]),
+        unet_config=sections["unet"],
+        diffusion_config=sections["diffusion"],
+        train_config=sections["train"],
         structure_channels=tuple(config["structure_channels"]),
         frame_size=tuple(config["frame_size"]),
-        mask_config=None if config.get("masks") is None else config_from_dict(MaskConfig, config["masks"]),
-        restore_config=config_from_dict(RestoreConfig, config.get("restore") or {}),
+        mask_config=sections["masks"],
+        restore_config=sections["restore"],
     ).to(device)
 
 
