@@ -48,9 +48,9 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
     )
     assert main(["train-restorer", "--arch", "dd2_mask", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
                  "--out", str(tmp_path / "r.pt"), "--residual-decoding", "on", "--sample-steps", "3", "--strength", "0.5",
-                 "--pixel-loss-weight", "2", "--clip-loss", "log_mse", *train]) == 0
+                 "--pixel-loss-weight", "2", *train]) == 0
     restorer = load_checkpoint(tmp_path / "r.pt", "restorer")
-    assert restorer["config"]["train"]["pixel_loss_weight"] == 2.0 and restorer["config"]["train"]["clip_loss"] == "log_mse"
+    assert restorer["config"]["train"]["pixel_loss_weight"] == 2.0
     assert restorer["config"]["masks"]["probability"] == 0.5 and restorer["training_scenes"] == [scene.scene_id]
     assert restorer["config"]["restore"] | {"residual_decoding": True, "sample_steps": 3, "strength": 0.5} == restorer["config"]["restore"]
     assert restorer["config"]["diffusion"]["prediction"] == "v"
@@ -63,7 +63,7 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
     default = load_checkpoint(tmp_path / "r_default.pt", "restorer")["config"]
     assert default["train"]["timestep_power"] == 50.0 and default["diffusion"]["target_space"] == "residual"
     assert default["restore"]["sample_steps"] == 1 and default["restore"]["residual_decoding"] is True
-    assert default["train"]["pixel_loss_weight"] == 0.0 and default["train"]["clip_loss"] == "mse"
+    assert default["train"]["pixel_loss_weight"] == 0.0
 
     np.save(tmp_path / "renders.npy", _blur(gt))
     assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--renders", str(tmp_path / "renders.npy"),

@@ -195,7 +195,7 @@ def test_restorer_steps_per_backbone_override_the_common_steps(tmp_path):
     assert steps == {"sd": "20", "svd": "35", "dd2": "20", "dd2_mask": "20"}
 
 
-def test_restorer_timestep_power_pixel_loss_weight_clip_loss_ema_decay_and_depth_reach_every_fine_tuning_and_only_when_set(tmp_path):
+def test_restorer_timestep_power_pixel_loss_weight_ema_decay_and_depth_reach_every_fine_tuning_and_only_when_set(tmp_path):
     root = workflow_copy(tmp_path)
     config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
     assert "timestep_power" not in config["restorer"]
@@ -211,12 +211,10 @@ def test_restorer_timestep_power_pixel_loss_weight_clip_loss_ema_decay_and_depth
     assert powers == {"sd": "50", "svd": "50", "dd2": "50", "dd2_mask": "50"}
     assert "--pixel-loss-weight" not in shell  # null: the command's default (no image-space loss)
     assert "--ema-decay" not in shell  # null: the command's default (the last weights)
-    assert "--clip-loss" not in shell  # null: the command's default (mse)
     assert "--blocks-per-level" not in shell  # null: the world model's depth
     config["restorer"]["pixel_loss_weight"] = 20
     config["restorer"]["ema_decay"] = 0.995
     config["restorer"]["blocks_per_level"] = 2
-    config["restorer"]["clip_loss"] = "log_mse"
     (root / "pixel.yaml").write_text(yaml.safe_dump(config))
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "pixel.yaml", "--until", "train_restorer").stdout
     weights = dict(re.findall(r"train-restorer --arch (\w+) .*?--pixel-loss-weight (\S+)", shell))
@@ -225,5 +223,3 @@ def test_restorer_timestep_power_pixel_loss_weight_clip_loss_ema_decay_and_depth
     assert decays == {"sd": "0.995", "svd": "0.995", "dd2": "0.995", "dd2_mask": "0.995"}
     depths = dict(re.findall(r"train-restorer --arch (\w+) .*?--blocks-per-level (\S+)", shell))
     assert depths == {"sd": "2", "svd": "2", "dd2": "2", "dd2_mask": "2"}
-    clip_losses = dict(re.findall(r"train-restorer --arch (\w+) .*?--clip-loss (\S+)", shell))
-    assert clip_losses == {"sd": "log_mse", "svd": "log_mse", "dd2": "log_mse", "dd2_mask": "log_mse"}

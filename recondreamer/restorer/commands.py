@@ -83,11 +83,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="weight of an image-space loss (MSE of the decoded one-step sample against ground truth, [-1,1] pixel "
         "units) added to the diffusion loss; 0 = diffusion loss only (default 0)",
     )
-    p.add_argument(
-        "--clip-loss", choices=["mse", "log_mse"], default=None,
-        help="how the diffusion loss reduces the batch's squared errors: mse = their mean (default); log_mse = the mean "
-        "over clips of each clip's log MSE, which weighs clips as the mean PSNR gain does (docs/restorer.md)",
-    )
     _add_train_options(p)
     _add_threads_option(p)
     _add_device_option(p)
@@ -289,7 +284,7 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     train = _train_config(args, world.train_config)
     if args.timestep_power is None:
         train = dataclasses.replace(train, timestep_power=RESTORER_TIMESTEP_POWER)
-    train = dataclasses.replace(train, pixel_loss_weight=args.pixel_loss_weight or 0.0, clip_loss=args.clip_loss or "mse")
+    train = dataclasses.replace(train, pixel_loss_weight=args.pixel_loss_weight or 0.0)
     files = find_pairs_files(args.pairs)
     keep_frames = masks is not None or train.pixel_loss_weight > 0.0
     sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=keep_frames)

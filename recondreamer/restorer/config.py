@@ -134,10 +134,6 @@ class TrainConfig:
     # Restorers: weight of an image-space term beside the diffusion loss, the MSE of the frames the
     # one-step sample decodes to (training.image_space_loss); 0 = the diffusion loss alone.
     pixel_loss_weight: float = 0.0
-    # How the batch's squared errors become the loss (diffusion.CLIP_LOSSES): "mse", their mean, or
-    # "log_mse", the mean over clips of each clip's log MSE, which weighs clips as the mean PSNR
-    # gain does.
-    clip_loss: str = "mse"
     # Decay of an exponential moving average of the weights, which the checkpoint then holds;
     # 0 = the last weights. Batches of two clips make single steps noisy, and averaging them is
     # standard in diffusion training (training.run_training_loop).

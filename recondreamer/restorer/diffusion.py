@@ -44,16 +44,6 @@ from recondreamer.restorer.config import DiffusionConfig
 
 PREDICTIONS = ("epsilon", "v", "x0")
 TARGET_SPACES = ("clean", "residual")
-# How a batch's squared errors become the training loss. "mse": their mean, so a clip counts in
-# proportion to its error, and the clips a restorer already receives nearly right (late training
-# stages, the original trajectory) hardly count. "log_mse": the mean over clips of the log of each
-# clip's own MSE. The PSNR gain a restorer is scored by is 10 log10(MSE_in / MSE_out) per clip,
-# averaged over clips, and the gradient of log MSE_out is grad(MSE_out) / MSE_out: every clip's
-# error is weighed by the inverse of its current size, so halving a small error counts as much as
-# halving a large one, as it does in that mean. For v-prediction x0 = a * x_t - s * v (module
-# docstring), so the x0 error is -s times the v error, and at a given step the log of a clip's
-# v-MSE is the log of its restored latent's MSE plus a constant.
-CLIP_LOSSES = ("mse", "log_mse")
 
 
 class NoiseSchedule:
@@ -156,17 +146,11 @@ def diffusion_loss_and_estimate(
     x0: torch.Tensor,  # (B,...) in the schedule's target space
     generator: torch.Generator | None = None,
     timestep_power: float = 1.0,
-    clip_loss: str = "mse",
 ) -> tuple[torch.Tensor, torch.Tensor]:  # loss (), x0 estimate (B,...) differentiable
-    """The error between the network's output and its target at random steps (density of the
-    steps proportional to t^(timestep_power - 1)), and the x0 estimate the output implies at
-    those steps: what a one-step sampler would return, for losses on the sample itself
-    (image-space terms).
-
-    ``clip_loss`` "mse" is the mean squared error over the batch; "log_mse" is the mean over the
-    batch's clips of the log of each clip's own mean squared error (see ``CLIP_LOSSES``)."""
-    if clip_loss not in CLIP_LOSSES:
-        raise ValueError(f"unknown clip loss {clip_loss!r} (expected one of {', '.join(CLIP_LOSSES)})")
+    """Mean squared error between the network's output and its target at random steps (density
+    of the steps proportional to t^(timestep_power - 1)), and the x0 estimate the output implies
+    at those steps: what a one-step sampler would return, for losses on the sample itself
+    (image-space terms)."""
     b = x0.shape[0]
     if timestep_power == 1.0:  # the integer sampler of earlier checkpoints, so their runs reproduce
         timesteps = torch.randint(0, schedule.num_timesteps, (b,), generator=generator)
@@ -177,11 +161,7 @@ def diffusion_loss_and_estimate(
     noise = torch.randn(x0.shape, generator=generator).to(x0.device)
     noisy = schedule.add_noise(x0, noise, timesteps)
     output = model_fn(noisy, timesteps)
-    squared_error = (output - schedule.training_target(x0, noise, timesteps)) ** 2
-    if clip_loss == "mse":
-        loss = torch.mean(squared_error)
-    else:
-        loss = torch.log(squared_error.flatten(1).mean(dim=1).clamp(min=1e-12)).mean()
+    loss = torch.mean((output - schedule.training_target(x0, noise, timesteps)) ** 2)
     return loss, schedule.split_prediction(noisy, output, timesteps)[0]
 
 

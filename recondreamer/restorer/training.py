@@ -350,18 +350,16 @@ def _batch_on(batch: dict, device: torch.device) -> dict:
 
 
 def unet_loss(
-    unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0,
-    clip_loss: str = "mse",
+    unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0
 ) -> torch.Tensor:
-    """The diffusion loss (error to the schedule's prediction target at a random step per clip,
-    reduced as ``clip_loss`` says) of one batch, in the schedule's target space (residual
-    restorers: relative to the degraded clip). The batch (built on the CPU) is moved to the UNet's device."""
-    return unet_loss_and_estimate(unet, schedule, batch, generator, timestep_power, clip_loss)[0]
+    """The diffusion loss (MSE to the schedule's prediction target at a random step per clip) of
+    one batch, in the schedule's target space (residual restorers: relative to the degraded clip).
+    The batch (built on the CPU) is moved to the UNet's device."""
+    return unet_loss_and_estimate(unet, schedule, batch, generator, timestep_power)[0]
 
 
 def unet_loss_and_estimate(
-    unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0,
-    clip_loss: str = "mse",
+    unet: LatentUNet, schedule: NoiseSchedule, batch: dict, generator: torch.Generator, timestep_power: float = 1.0
 ) -> tuple[torch.Tensor, torch.Tensor]:  # loss (), x0 estimate (B,T,c,h,w) in the target space
     """``unet_loss`` and the x0 estimate of the drawn steps (``diffusion_loss_and_estimate``)."""
     batch = _batch_on(batch, module_device(unet))
@@ -370,7 +368,7 @@ def unet_loss_and_estimate(
         return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])
 
     x0 = schedule.to_diffusion_space(batch["target"], batch["degraded"])
-    return diffusion_loss_and_estimate(model_fn, schedule, x0, generator, timestep_power, clip_loss)
+    return diffusion_loss_and_estimate(model_fn, schedule, x0, generator, timestep_power)
 
 
 def image_space_loss(
@@ -531,7 +529,7 @@ def train_restorer(
             sequences, rng, train, unet.config.downsample_factor, unet.config.uses_structure, True, masks, world.autoencoder,
             with_pixels=image_weight > 0.0,
         )
-        loss, estimate = unet_loss_and_estimate(unet, schedule, batch, generator, train.timestep_power, train.clip_loss)
+        loss, estimate = unet_loss_and_estimate(unet, schedule, batch, generator, train.timestep_power)
         if image_weight > 0.0:
             loss = loss + image_weight * image_space_loss(world.autoencoder, schedule, estimate, batch, restore.residual_decoding)
         return loss

@@ -57,7 +57,6 @@ rule train_restorer:
                 ("--window", "window"),
                 ("--timestep-power", "timestep_power"),
                 ("--pixel-loss-weight", "pixel_loss_weight"),
-                ("--clip-loss", "clip_loss"),
                 ("--ema-decay", "ema_decay"),
                 ("--blocks-per-level", "blocks_per_level"),
                 ("--seed", "seed"),
