@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -15 runs under results/restorer-dev/s8/ .. s15/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -16 runs under results/restorer-dev/s8/ .. s16wm/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -252,3 +252,20 @@ python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --
   --restorer dd2_mask="$S15/baseline_1000.pt" | tee "$S15/gate_baseline_1000.txt"
 python benchmarks/restorer_variants.py --restorer "$S15/baseline_1000.pt" --pairs "$DEV/pairs-heldout" \
   --stages-per-run 2 --seeds 4 --gains 0.8 | tee "$S15/variants_baseline_1000.txt"
+
+# Session 16 (docs/restorer.md, "Results (session 16)"): how much the world model's pretraining is
+# worth to the restorer: dd2 world models pretrained 1 and 3000 steps (against long/'s 1000), each
+# fine-tuned into a dd2_mask restorer exactly as session 15's baseline (1000 whole-latent steps,
+# EMA 0.995, seed 0), scored on both held-out sets. (The session's per-clip log-loss A/B needs the
+# reverted option: git checkout afad542.)
+S16=$DEV/s16wm
+mkdir -p "$S16"
+for steps in 1 3000; do
+  run "$S16/wm_dd2_$steps.pt" "$S16/wm_dd2_$steps.log" $RC pretrain-world-model --arch dd2 --corpus "$DEV/corpus-train" \
+    --autoencoder "$AE" --out "$S16/wm_dd2_$steps.pt" --steps $steps --threads 1
+  run "$S16/restorer_wm$steps.pt" "$S16/restorer_wm$steps.log" $RC train-restorer --arch dd2_mask --world-model "$S16/wm_dd2_$steps.pt" \
+    --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --out "$S16/restorer_wm$steps.pt" --steps 1000 --ema-decay 0.995 --seed 0
+  for set in pairs-heldout pairs-heldout2; do
+    python benchmarks/restorer.py --pairs "$DEV/$set" --stages-per-run 2 --steps 1 --restorer dd2_mask="$S16/restorer_wm$steps.pt"
+  done | tee "$S16/gate_wm$steps.txt"
+done
