@@ -210,21 +210,21 @@ for scene in $(seq -f "corpus-%03g" 61 200) $(seq -f "corpus-%03g" 201 206); do
     --out "$DEV/$dest" --stages 4 --trajectories $TRAJECTORIES --threads 1
 done
 pairs_of() { for scene in "$@"; do ls "$DEV/pairs-train/${scene}"__*.npz; done; }
-score() {  # score NAME: gate table of $S13/NAME.pt on both held-out sets
+score() {  # score DIR NAME: gate table of DIR/NAME.pt on both held-out sets
   python benchmarks/restorer.py --pairs "$DEV/pairs-heldout" --stages-per-run 2 --steps 1 \
-    --restorer dd2_mask="$S13/$1.pt" --threads 1 | tee "$S13/gate_$1.txt"
+    --restorer dd2_mask="$1/$2.pt" --threads 1 | tee "$1/gate_$2.txt"
   python benchmarks/restorer.py --pairs "$DEV/pairs-heldout2" --stages-per-run 2 --steps 1 \
-    --restorer dd2_mask="$S13/$1.pt" --threads 1 | tee "$S13/heldout2_$1.txt"
+    --restorer dd2_mask="$1/$2.pt" --threads 1 | tee "$1/heldout2_$2.txt"
 }
 STAGE1=$(pairs_of $(scenes $(seq 0 19) $(seq 23 39) $(seq 177 200)))   # 61 scenes
 run "$S13/stage1_3000.pt" "$S13/stage1_3000.log" $RC train-restorer $WHOLE --pairs $STAGE1 \
   --out "$S13/stage1_3000.pt" --steps 3000 --ema-decay 0.998
-score stage1_3000
+score "$S13" stage1_3000
 # 105 scenes and the first file of corpus-084 (its other three were still being rendered)
 STAGE2="$(pairs_of $(scenes $(seq 0 19) $(seq 23 83) $(seq 177 200))) $DEV/pairs-train/corpus-084__street.npz"
 run "$S13/stage2_4000.pt" "$S13/stage2_4000.log" $RC train-restorer $WHOLE --pairs $STAGE2 \
   --init-restorer "$S13/stage1_3000.pt" --out "$S13/stage2_4000.pt" --steps 4000 --ema-decay 0.999
-score stage2_4000
+score "$S13" stage2_4000
 # Depth A/B from stage 2 on the same 151 scenes, same seed and steps: the restorer as it is (1 residual
 # block per level) against one grown to 3 blocks per level (--blocks-per-level 3, added blocks start as
 # the identity).
@@ -233,13 +233,13 @@ for blocks in 1 3; do
   name=stage3_3000; [ "$blocks" = 1 ] || name=stage3_blocks${blocks}_3000
   run "$S13/$name.pt" "$S13/$name.log" $RC train-restorer $WHOLE --pairs $STAGE3 --blocks-per-level $blocks \
     --init-restorer "$S13/stage2_4000.pt" --out "$S13/$name.pt" --steps 3000 --ema-decay 0.998
-  score $name
+  score "$S13" $name
 done
 # Stage 4: 5000 more steps from the 1-block stage 3 on all 157 scenes' pairs.
 STAGE4=$(pairs_of $(scenes $(seq 0 19) $(seq 23 135) $(seq 177 200)))   # 157 scenes
 run "$S13/stage4_5000.pt" "$S13/stage4_5000.log" $RC train-restorer $WHOLE --pairs $STAGE4 \
   --init-restorer "$S13/stage3_3000.pt" --out "$S13/stage4_5000.pt" --steps 5000 --ema-decay 0.999
-score stage4_5000
+score "$S13" stage4_5000
 
 # Session 15 (docs/restorer.md, "Results (session 15)"): the baseline of the start-noise probes, a
 # 1000-step whole-latent dd2_mask restorer on the 13 scenes' pairs, plain and averaged over seeds.
@@ -265,7 +265,5 @@ for steps in 1 3000; do
     --autoencoder "$AE" --out "$S16/wm_dd2_$steps.pt" --steps $steps --threads 1
   run "$S16/restorer_wm$steps.pt" "$S16/restorer_wm$steps.log" $RC train-restorer --arch dd2_mask --world-model "$S16/wm_dd2_$steps.pt" \
     --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --out "$S16/restorer_wm$steps.pt" --steps 1000 --ema-decay 0.995 --seed 0
-  for set in pairs-heldout pairs-heldout2; do
-    python benchmarks/restorer.py --pairs "$DEV/$set" --stages-per-run 2 --steps 1 --restorer dd2_mask="$S16/restorer_wm$steps.pt"
-  done | tee "$S16/gate_wm$steps.txt"
+  score "$S16" restorer_wm$steps
 done
