@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -16 runs under results/restorer-dev/s8/ .. s16wm/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -17 runs under results/restorer-dev/s8/ .. s17/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -267,3 +267,32 @@ for steps in 1 3000; do
     --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --out "$S16/restorer_wm$steps.pt" --steps 1000 --ema-decay 0.995 --seed 0
   score "$S16" restorer_wm$steps
 done
+
+# Session 17 (docs/restorer.md, "Results (session 17)"): a dd2 world model pretrained 10000 steps,
+# fine-tuned as session 16's (1000 whole-latent steps, EMA 0.995, seeds 0 and 1); the 3000- and
+# 10000-step world models' restorers trained 2000 steps further (EMA 0.998, as session 16's
+# 1000-step world model's); and the 3000-step world model's 3000-step restorer 5000 steps further
+# on the pairs of 22 scenes (corpus-000..019, 023, 024; EMA 0.999).
+S17=$DEV/s17
+mkdir -p "$S17"
+run "$S17/wm_dd2_10000.pt" "$S17/wm_dd2_10000.log" $RC pretrain-world-model --arch dd2 --corpus "$DEV/corpus-train" \
+  --autoencoder "$AE" --out "$S17/wm_dd2_10000.pt" --steps 10000 --threads 1
+for seed in 0 1; do
+  run "$S17/wm10000_1000_seed$seed.pt" "$S17/wm10000_1000_seed$seed.log" $RC train-restorer --arch dd2_mask \
+    --world-model "$S17/wm_dd2_10000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --out "$S17/wm10000_1000_seed$seed.pt" \
+    --steps 1000 --ema-decay 0.995 --seed $seed
+  score "$S17" wm10000_1000_seed$seed
+done
+run "$S17/wm3000_from1000_2000.pt" "$S17/wm3000_from1000_2000.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --init-restorer "$S16/restorer_wm3000.pt" \
+  --out "$S17/wm3000_from1000_2000.pt" --steps 2000 --ema-decay 0.998 --seed 0
+score "$S17" wm3000_from1000_2000
+run "$S17/wm10000_from1000_2000.pt" "$S17/wm10000_from1000_2000.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$S17/wm_dd2_10000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --init-restorer "$S17/wm10000_1000_seed0.pt" \
+  --out "$S17/wm10000_from1000_2000.pt" --steps 2000 --ema-decay 0.998 --seed 0
+score "$S17" wm10000_from1000_2000
+PAIRS22=$(pairs_of $(scenes $(seq 0 19) 23 24))
+run "$S17/wm3000_22sc_from3000_5000.pt" "$S17/wm3000_22sc_from3000_5000.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS22 --init-restorer "$S17/wm3000_from1000_2000.pt" \
+  --out "$S17/wm3000_22sc_from3000_5000.pt" --steps 5000 --ema-decay 0.999 --seed 0
+score "$S17" wm3000_22sc_from3000_5000
