@@ -272,7 +272,7 @@ done
 # fine-tuned as session 16's (1000 whole-latent steps, EMA 0.995, seeds 0 and 1); the 3000- and
 # 10000-step world models' restorers trained 2000 steps further (EMA 0.998, as session 16's
 # 1000-step world model's); and the 3000-step world model's 3000-step restorer 5000 steps further
-# on the pairs of 22 scenes (corpus-000..019, 023, 024; EMA 0.999).
+# on the pairs of 22 scenes (corpus-000..019, 023, 024; EMA 0.999), then 2000 more with two threads.
 S17=$DEV/s17
 mkdir -p "$S17"
 run "$S17/wm_dd2_10000.pt" "$S17/wm_dd2_10000.log" $RC pretrain-world-model --arch dd2 --corpus "$DEV/corpus-train" \
@@ -296,3 +296,7 @@ run "$S17/wm3000_22sc_from3000_5000.pt" "$S17/wm3000_22sc_from3000_5000.log" $RC
   --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS22 --init-restorer "$S17/wm3000_from1000_2000.pt" \
   --out "$S17/wm3000_22sc_from3000_5000.pt" --steps 5000 --ema-decay 0.999 --seed 0
 score "$S17" wm3000_22sc_from3000_5000
+run "$S17/wm3000_22sc_from8000_2000.pt" "$S17/wm3000_22sc_from8000_2000.log" $RC train-restorer --arch dd2_mask \
+  --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --threads 2 --pairs $PAIRS22 \
+  --init-restorer "$S17/wm3000_22sc_from3000_5000.pt" --out "$S17/wm3000_22sc_from8000_2000.pt" --steps 2000 --ema-decay 0.999 --seed 0
+score "$S17" wm3000_22sc_from8000_2000
