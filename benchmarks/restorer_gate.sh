@@ -143,7 +143,9 @@ python benchmarks/restorer_variants.py --restorer "$S9/from10400_px200_700.pt" -
 # the first pass's outputs (benchmarks/restored_pairs.py).
 S10=$DEV/s10
 mkdir -p "$S10"
-WHOLE="--arch dd2_mask --world-model $WM/wm_dd2.pt --crop 0 0 $RESTORER_OPTIONS"
+# The whole-latent dd2_mask set-up; sessions 16-17 add their own --world-model to WHOLE_SETUP.
+WHOLE_SETUP="--arch dd2_mask --crop 0 0 $RESTORER_OPTIONS"
+WHOLE="$WHOLE_SETUP --world-model $WM/wm_dd2.pt"
 run "$S10/base_1000.pt" "$S10/base_1000.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S10/base_1000.pt" --steps 1000
 run "$S10/ema995_1000.pt" "$S10/ema995_1000.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S10/ema995_1000.pt" \
   --steps 1000 --ema-decay 0.995
@@ -263,8 +265,8 @@ mkdir -p "$S16"
 for steps in 1 3000; do
   run "$S16/wm_dd2_$steps.pt" "$S16/wm_dd2_$steps.log" $RC pretrain-world-model --arch dd2 --corpus "$DEV/corpus-train" \
     --autoencoder "$AE" --out "$S16/wm_dd2_$steps.pt" --steps $steps --threads 1
-  run "$S16/restorer_wm$steps.pt" "$S16/restorer_wm$steps.log" $RC train-restorer --arch dd2_mask --world-model "$S16/wm_dd2_$steps.pt" \
-    --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --out "$S16/restorer_wm$steps.pt" --steps 1000 --ema-decay 0.995 --seed 0
+  run "$S16/restorer_wm$steps.pt" "$S16/restorer_wm$steps.log" $RC train-restorer $WHOLE_SETUP --world-model "$S16/wm_dd2_$steps.pt" \
+    --pairs $PAIRS --out "$S16/restorer_wm$steps.pt" --steps 1000 --ema-decay 0.995 --seed 0
   score "$S16" restorer_wm$steps
 done
 
@@ -278,25 +280,25 @@ mkdir -p "$S17"
 run "$S17/wm_dd2_10000.pt" "$S17/wm_dd2_10000.log" $RC pretrain-world-model --arch dd2 --corpus "$DEV/corpus-train" \
   --autoencoder "$AE" --out "$S17/wm_dd2_10000.pt" --steps 10000 --threads 1
 for seed in 0 1; do
-  run "$S17/wm10000_1000_seed$seed.pt" "$S17/wm10000_1000_seed$seed.log" $RC train-restorer --arch dd2_mask \
-    --world-model "$S17/wm_dd2_10000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --out "$S17/wm10000_1000_seed$seed.pt" \
+  run "$S17/wm10000_1000_seed$seed.pt" "$S17/wm10000_1000_seed$seed.log" $RC train-restorer $WHOLE_SETUP \
+    --world-model "$S17/wm_dd2_10000.pt" --pairs $PAIRS --out "$S17/wm10000_1000_seed$seed.pt" \
     --steps 1000 --ema-decay 0.995 --seed $seed
   score "$S17" wm10000_1000_seed$seed
 done
-run "$S17/wm3000_from1000_2000.pt" "$S17/wm3000_from1000_2000.log" $RC train-restorer --arch dd2_mask \
-  --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --init-restorer "$S16/restorer_wm3000.pt" \
+run "$S17/wm3000_from1000_2000.pt" "$S17/wm3000_from1000_2000.log" $RC train-restorer $WHOLE_SETUP \
+  --world-model "$S16/wm_dd2_3000.pt" --pairs $PAIRS --init-restorer "$S16/restorer_wm3000.pt" \
   --out "$S17/wm3000_from1000_2000.pt" --steps 2000 --ema-decay 0.998 --seed 0
 score "$S17" wm3000_from1000_2000
-run "$S17/wm10000_from1000_2000.pt" "$S17/wm10000_from1000_2000.log" $RC train-restorer --arch dd2_mask \
-  --world-model "$S17/wm_dd2_10000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS --init-restorer "$S17/wm10000_1000_seed0.pt" \
+run "$S17/wm10000_from1000_2000.pt" "$S17/wm10000_from1000_2000.log" $RC train-restorer $WHOLE_SETUP \
+  --world-model "$S17/wm_dd2_10000.pt" --pairs $PAIRS --init-restorer "$S17/wm10000_1000_seed0.pt" \
   --out "$S17/wm10000_from1000_2000.pt" --steps 2000 --ema-decay 0.998 --seed 0
 score "$S17" wm10000_from1000_2000
 PAIRS22=$(pairs_of $(scenes $(seq 0 19) 23 24))
-run "$S17/wm3000_22sc_from3000_5000.pt" "$S17/wm3000_22sc_from3000_5000.log" $RC train-restorer --arch dd2_mask \
-  --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --pairs $PAIRS22 --init-restorer "$S17/wm3000_from1000_2000.pt" \
+run "$S17/wm3000_22sc_from3000_5000.pt" "$S17/wm3000_22sc_from3000_5000.log" $RC train-restorer $WHOLE_SETUP \
+  --world-model "$S16/wm_dd2_3000.pt" --pairs $PAIRS22 --init-restorer "$S17/wm3000_from1000_2000.pt" \
   --out "$S17/wm3000_22sc_from3000_5000.pt" --steps 5000 --ema-decay 0.999 --seed 0
 score "$S17" wm3000_22sc_from3000_5000
-run "$S17/wm3000_22sc_from8000_2000.pt" "$S17/wm3000_22sc_from8000_2000.log" $RC train-restorer --arch dd2_mask \
-  --world-model "$S16/wm_dd2_3000.pt" --crop 0 0 $RESTORER_OPTIONS --threads 2 --pairs $PAIRS22 \
+run "$S17/wm3000_22sc_from8000_2000.pt" "$S17/wm3000_22sc_from8000_2000.log" $RC train-restorer $WHOLE_SETUP \
+  --world-model "$S16/wm_dd2_3000.pt" --threads 2 --pairs $PAIRS22 \
   --init-restorer "$S17/wm3000_22sc_from3000_5000.pt" --out "$S17/wm3000_22sc_from8000_2000.pt" --steps 2000 --ema-decay 0.999 --seed 0
 score "$S17" wm3000_22sc_from8000_2000
