@@ -17,7 +17,10 @@ trajectory), restore the clip and print:
 - the fine-tuning job's steps, training-timestep power, CPU ms per step and CPU minutes, as
   recorded in the checkpoint (steps and minutes summed over the jobs of a restorer trained further
   from another with ``--init-restorer``; ms per step of the last job);
-- the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``.
+- the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``;
+- for a restorer with a pixel refiner (``train-refiner``): every setting with and without the
+  refiner (column ``refine``), and the refiner job's CPU minutes (training, and restoring its
+  pairs where they were not cached yet).
 
 Pairs whose scene was in a restorer's training set are skipped for that restorer (the checkpoint
 records its training scenes). ``--training-scenes`` scores the opposite set, only clips of the
@@ -90,13 +93,20 @@ def evaluate_restorer(
     train_steps, train_minutes = training_totals(metrics)  # every job of a restorer trained further (--init-restorer)
     timestep_power = payload["config"]["train"].get("timestep_power", float("nan"))
     clips = scored_clips(restorer, payload, pair_files, stages_per_run, training_scenes)
+    refiner_metrics = (payload.get("refiner") or {}).get("metrics", {})
+    refiner_minutes = refiner_metrics.get("cpu_ms_per_step", float("nan")) * refiner_metrics.get("steps", 0) / 60000.0 + refiner_metrics.get(
+        "pairs_cpu_minutes", 0.0
+    )
+    refine_options = [True, False] if restorer.refiner is not None else [False]
     rows = []
-    for steps, strength, residual in settings:
+    for (steps, strength, residual), refine in itertools.product(settings, refine_options):
         records = []
         seconds_per_40 = cpu_seconds_per_40 = float("nan")
         for kind, degraded, gt, structure in clips:
             start, start_cpu = time.perf_counter(), time.process_time()
-            restored = restore_clip(restorer, degraded, structure, num_steps=steps, strength=strength, residual_decoding=residual)
+            restored = restore_clip(
+                restorer, degraded, structure, num_steps=steps, strength=strength, residual_decoding=residual, refine=refine
+            )
             seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
             if not records:
                 seconds_per_40 = seconds * 40 / len(degraded)
@@ -111,6 +121,8 @@ def evaluate_restorer(
             "steps": steps or restorer.restore_config.sample_steps,
             "strength": strength or restorer.restore_config.strength,
             "residual": restorer.restore_config.residual_decoding if residual is None else residual,
+            "refine": "on" if refine else ("off" if restorer.refiner is not None else "-"),
+            "refiner_minutes": refiner_minutes if restorer.refiner is not None else float("nan"),
             "clips": len(records),
             "psnr_degraded": mean([rec["degraded"] for rec in records]),
             "psnr_restored": mean([rec["restored"] for rec in records]),
@@ -163,9 +175,9 @@ def main() -> None:
     else:
         rows = [row for job in jobs for row in evaluate_restorer(*job)]
     header = (
-        f"{'backbone':10s} {'space':>8s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
+        f"{'backbone':10s} {'space':>8s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'refine':>6s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
         f"{'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick rest':>10s} {'s / 40 fr':>9s} {'cpu s / 40':>10s} "
-        f"{'train steps':>11s} {'t power':>7s} {'train CPU ms/step':>17s} {'train CPU min':>13s}"
+        f"{'train steps':>11s} {'t power':>7s} {'train CPU ms/step':>17s} {'train CPU min':>13s} {'refiner CPU min':>15s}"
     )
     scored = "clips of each restorer's training scenes" if args.training_scenes else "held-out clips"
     print(f"{scored}; threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
@@ -173,10 +185,10 @@ def main() -> None:
     print("-" * len(header))
     for row in sorted(rows, key=lambda r: (r["residual"], r["steps"], -r["strength"])):
         print(
-            f"{row['arch']:10s} {row['space']:>8s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
+            f"{row['arch']:10s} {row['space']:>8s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['refine']:>6s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
             f"{row['psnr_restored']:9.2f} {row['gain']:7.2f} {row['gain_orig']:6.2f} {row['gain_novel']:6.2f} "
             f"{row['flicker_degraded']:9.2f} {row['flicker_restored']:10.2f} {row['seconds_per_40']:9.1f} "
-            f"{row['cpu_seconds_per_40']:10.1f} {row['train_steps']:11d} {row['timestep_power']:7g} {row['train_ms']:17.0f} {row['train_minutes']:13.1f}"
+            f"{row['cpu_seconds_per_40']:10.1f} {row['train_steps']:11d} {row['timestep_power']:7g} {row['train_ms']:17.0f} {row['train_minutes']:13.1f} {row['refiner_minutes']:15.1f}"
         )
 
 

@@ -133,6 +133,25 @@ def test_local_restorer_checkpoint_replaces_training_that_restorer(tmp_path):
     assert result.returncode != 0 and "restorer.checkpoints.dd2_mask: file absent.pt not found" in result.stdout + result.stderr
 
 
+def test_refiner_steps_add_a_refiner_to_every_trained_restorer_and_the_runs_use_it(tmp_path):
+    root = workflow_copy(tmp_path)
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["restorer"]["refiner_steps"] = 40
+    config["restorer"]["checkpoints"] = {"dd2": "my_dd2.pt"}  # a local restorer is used as it is
+    (root / "my_dd2.pt").write_bytes(b"")
+    (root / "refine.yaml").write_text(yaml.safe_dump(config))
+    plain = job_counts(snakemake(root, "-n", "--quiet", "rules", "--configfile", "config/quick.yaml").stdout)
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "refine.yaml")
+    assert result.returncode == 0, result.stderr
+    assert job_counts(result.stdout) == {**plain, "train_restorer": plain["train_restorer"] - 1, "train_refiner": plain["train_restorer"] - 1,
+                                         "total": plain["total"] + plain["train_restorer"] - 2}
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "refine.yaml", "--until", "train_recondreamer").stdout
+    refine = re.findall(r"recondreamer train-refiner --restorer \S+restorer_(\w+)\.pt .*?--out \S+restorer_(\w+)_refined\.pt --steps 40 --seed 0", shell)
+    assert sorted(refine) == sorted((arch, arch) for arch in ("sd", "svd", "dd2_mask"))
+    runs = [line for line in shell.splitlines() if "recondreamer train-recondreamer" in line]
+    assert runs and all(re.search(r"--restorer (my_dd2\.pt|\S+_refined\.pt) ", line) for line in runs)
+
+
 def _bad_config(root: Path, edit) -> str:
     config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
     edit(config)

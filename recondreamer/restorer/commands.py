@@ -88,6 +88,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _add_device_option(p)
     p.set_defaults(func=run_train_restorer)
 
+    p = subparsers.add_parser(
+        "train-refiner", help="train DriveRestorer's pixel refiner on the restorer's outputs for restoration pairs (docs/restorer.md)"
+    )
+    p.add_argument("--restorer", required=True, help="restorer checkpoint (train-restorer output) whose outputs the refiner corrects")
+    p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files (e.g. the restorer's own)")
+    p.add_argument("--out", required=True, help="checkpoint to write: the restorer with its refiner")
+    p.add_argument("--steps", type=int, default=None, help="training steps (default from RefinerConfig: 3000)")
+    p.add_argument("--batch-size", type=int, default=None, help="pixel crops per step (default 8)")
+    p.add_argument("--crop", type=int, default=None, help="side of the square training crops in pixels (default 64)")
+    p.add_argument("--width", type=int, default=None, help="refiner channels at full resolution (default 24)")
+    p.add_argument("--learning-rate", type=float, default=None, help="AdamW learning rate (default 5e-4)")
+    p.add_argument("--ema-decay", type=float, default=None, help="EMA of the weights saved instead of the last ones (default 0: off)")
+    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    p.add_argument("--no-structure", action="store_true", help="do not show the refiner the structure maps (dd2 archs)")
+    _add_threads_option(p)
+    _add_device_option(p)
+    p.set_defaults(func=run_train_refiner)
+
     p = subparsers.add_parser("restore", help="restore a rendered clip with DriveRestorer")
     p.add_argument("--restorer", required=True, help="restorer checkpoint (train-restorer output)")
     p.add_argument("--scene", required=True, help="scene directory (boxes and HD map for the structure maps; frame size check)")
@@ -300,6 +318,28 @@ def run_train_restorer(args: argparse.Namespace) -> int:
         args.blocks_per_level,
     )
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
+    return 0
+
+
+def run_train_refiner(args: argparse.Namespace) -> int:
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.restorer.config import RefinerConfig
+    from recondreamer.restorer.data import find_pairs_files
+    from recondreamer.restorer.training import train_refiner
+
+    overrides = {
+        "steps": args.steps, "batch_size": args.batch_size, "crop": args.crop, "width": args.width,
+        "learning_rate": args.learning_rate, "ema_decay": args.ema_decay, "seed": args.seed,
+    }
+    config = dataclasses.replace(RefinerConfig(), use_structure=not args.no_structure, **{k: v for k, v in overrides.items() if v is not None})
+    for name in ("steps", "batch_size", "crop", "width"):
+        if getattr(config, name) < 1:
+            raise RecondreamerError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
+    if not 0.0 <= config.ema_decay < 1.0:
+        raise RecondreamerError(f"--ema-decay must be in [0, 1), got {config.ema_decay}")
+    _set_threads(args)
+    stats = train_refiner(args.restorer, find_pairs_files(args.pairs), config, args.out, _device(args))
+    LOG.info("wrote %s: final loss %.5f, %.0f CPU ms/step", args.out, stats["final_loss"], stats["cpu_ms_per_step"])
     return 0
 
 

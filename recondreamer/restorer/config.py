@@ -143,6 +143,30 @@ class TrainConfig:
     seed: int = 0
 
 
+@dataclass(frozen=True)
+class RefinerConfig:
+    """The pixel refiner (``refiner.py``) and its training (``training.train_refiner``).
+
+    It trains on random square pixel crops of single frames: the restorer's output, the degraded
+    render and the structure maps of one frame, against its ground truth.
+    """
+
+    width: int = 24  # channels at full resolution (2x at half, 3x at quarter resolution)
+    bottleneck_blocks: int = 3  # residual blocks at quarter resolution
+    use_structure: bool = True  # also see the structure maps (dd2 archs' conditions)
+    steps: int = 3000
+    batch_size: int = 8  # crops per step
+    crop: int = 64  # crop side in pixels
+    # 1e-3 trained two 3000-step refiners but sent a 6000-step one to a loss spike (step 1200) after
+    # which it returned its input unchanged; 5e-4 trained that job well (docs/restorer.md, session 18).
+    learning_rate: float = 5e-4
+    warmup_steps: int = 100
+    ema_decay: float = 0.0
+    checkpoint_every: int = 200
+    log_every: int = 50
+    seed: int = 0
+
+
 # What `train-restorer` uses unless told otherwise (docs/restorer.md): one DDIM step with residual
 # decoding when restoring (4 steps scored ~1 dB lower on held-out pairs, session 3), and training
 # timesteps with density ~ t^49, 95% of them above t = 940: the restorer learns the one step it

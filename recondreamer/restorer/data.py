@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -205,6 +206,30 @@ def pair_latents(path: Path, content: dict, autoencoder: Autoencoder, digest: st
         torch.save({"gt": gt_latents, "degraded": degraded_latents}, tmp)
     cached = torch.load(cache, map_location="cpu", weights_only=True, mmap=True)  # memory-mapped like a cache hit
     return cached["gt"], cached["degraded"]
+
+
+def restored_pair_frames(
+    path: Path,
+    content: dict,
+    restore: Callable[[np.ndarray, np.ndarray], np.ndarray],  # (T,H,W,3) uint8 render, (T,S,H,W) uint8 maps -> (T,H,W,3) uint8
+    digest: str,
+) -> np.ndarray:  # (K,T,H,W,3) uint8, memory-mapped
+    """A restorer's output for every degraded stage of a pairs file (what a pixel refiner trains on).
+
+    Restoring costs about 0.1 CPU s per frame; the frames are cached next to the pairs file as
+    ``<stem>.restored-<digest>.pt`` (``digest`` names the restorer, e.g. ``training.restorer_digest``;
+    written atomically) and memory-mapped like ``mapped_pair_arrays``.
+    """
+    cache = path.with_name(f"{path.stem}.restored-{digest}.pt")
+    expected = content["degraded"].shape
+    if cache.is_file() and cache.stat().st_mtime >= path.stat().st_mtime:
+        cached = torch.load(cache, weights_only=True, mmap=True).numpy()
+        if cached.shape == expected:
+            return cached
+    restored = np.stack([restore(stage, content["structure"]) for stage in content["degraded"]])
+    with atomic_path(cache) as tmp:
+        torch.save(torch.from_numpy(restored), tmp)
+    return torch.load(cache, weights_only=True, mmap=True).numpy()
 
 
 MAPPED_PAIRS_ARRAYS = ("gt", "degraded", "structure", "sky")

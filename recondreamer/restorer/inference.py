@@ -21,6 +21,7 @@ from recondreamer.restorer.autoencoder import Autoencoder, decode_latents, encod
 from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
 from recondreamer.restorer.diffusion import ddim_sample
 from recondreamer.restorer.models import GenerativeModel, load_generative_model
+from recondreamer.restorer.refiner import refine_frames
 
 
 def load_restorer(path: str | os.PathLike, device: torch.device | str = "cpu") -> GenerativeModel:
@@ -165,12 +166,15 @@ def restore_clip(
     strength: float | None = None,
     seed: int | None = None,
     residual_decoding: bool | None = None,
+    refine: bool = True,
 ) -> np.ndarray:  # (T,H,W,3) uint8
     """Restore a rendered clip with DriveRestorer (defaults from the checkpoint's restore config).
 
     Each window is conditioned on its degraded frames (its first one also as the reference
     frame, as in training) and, for dd2 archs, on the structure maps. With residual decoding
-    the output is the input plus the decoded change ``D(z_restored) - D(E(input))``.
+    the output is the input plus the decoded change ``D(z_restored) - D(E(input))``. A restorer
+    with a pixel refiner (``train-refiner``) then refines that output frame by frame, unless
+    ``refine`` is False (the diffusion restorer's output alone, e.g. to measure the refiner).
     """
     if restorer.kind != "restorer":
         raise RecondreamerError(f"restore_clip needs a restorer, got a {restorer.kind} ({restorer.arch})")
@@ -182,8 +186,12 @@ def restore_clip(
         config.strength if strength is None else strength, config.seed if seed is None else seed,
     )
     if not (config.residual_decoding if residual_decoding is None else residual_decoding):
-        return decode_latents(restorer.autoencoder, latents)
-    return residual_decode(restorer.autoencoder, frames, latents, degraded_latents)
+        restored = decode_latents(restorer.autoencoder, latents)
+    else:
+        restored = residual_decode(restorer.autoencoder, frames, latents, degraded_latents)
+    if refine and restorer.refiner is not None:
+        restored = refine_frames(restorer.refiner, restored, frames, structure_tensor)
+    return restored
 
 
 def residual_decode(

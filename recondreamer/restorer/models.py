@@ -15,6 +15,7 @@ from recondreamer.restorer.config import (
     AutoencoderConfig,
     DiffusionConfig,
     MaskConfig,
+    RefinerConfig,
     RestoreConfig,
     TrainConfig,
     UNetConfig,
@@ -23,6 +24,7 @@ from recondreamer.restorer.config import (
 )
 from recondreamer.restorer.device import module_device, use_fast_conv_layout
 from recondreamer.restorer.diffusion import NoiseSchedule
+from recondreamer.restorer.refiner import PixelRefiner
 from recondreamer.restorer.unet import LatentUNet
 
 
@@ -59,6 +61,7 @@ class GenerativeModel:
     frame_size: tuple[int, int]  # (H, W) the model was trained on
     mask_config: MaskConfig | None = None
     restore_config: RestoreConfig = dataclasses.field(default_factory=RestoreConfig)
+    refiner: PixelRefiner | None = None  # restorers trained further with train-refiner (refiner.py)
 
     @property
     def device(self) -> torch.device:
@@ -69,6 +72,8 @@ class GenerativeModel:
         CPU, ``device.use_fast_conv_layout``); returns the model."""
         use_fast_conv_layout(self.unet.to(device))
         use_fast_conv_layout(self.autoencoder.to(device))
+        if self.refiner is not None:
+            use_fast_conv_layout(self.refiner.to(device))
         return self
 
 
@@ -122,7 +127,15 @@ def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> Gen
         frame_size=tuple(config["frame_size"]),
         mask_config=sections["masks"],
         restore_config=sections["restore"],
+        refiner=None if payload.get("refiner") is None else refiner_from_payload(payload["refiner"]),
     ).to(device)
+
+
+def refiner_from_payload(payload: dict) -> PixelRefiner:
+    """The pixel refiner stored in a restorer checkpoint's ``refiner`` entry (``training.train_refiner``)."""
+    refiner = PixelRefiner(config_from_dict(RefinerConfig, payload["config"]), payload["structure_channels"])
+    refiner.load_state_dict(payload["state"])
+    return refiner.eval()
 
 
 def load_generative_model(path: str | os.PathLike, kind: str, device: torch.device | str = "cpu") -> GenerativeModel:

@@ -9,6 +9,8 @@ Progress (step, loss, ms/step, ETA) is logged every ``log_every`` steps.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import logging
 import math
 import os
@@ -26,13 +28,21 @@ from recondreamer.restorer.config import (
     AutoencoderConfig,
     DiffusionConfig,
     MaskConfig,
+    RefinerConfig,
     RestoreConfig,
     TrainConfig,
     UNetConfig,
     config_from_dict,
     config_to_dict,
 )
-from recondreamer.restorer.data import Sequence
+from recondreamer.restorer.data import (
+    Sequence,
+    autoencoder_digest,
+    load_pairs_file,
+    mapped_pair_arrays,
+    restored_pair_frames,
+    structure_from_uint8,
+)
 from recondreamer.restorer.device import module_device, use_fast_conv_layout
 from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
 from recondreamer.restorer.masks import sample_clip_masks
@@ -42,9 +52,11 @@ from recondreamer.restorer.models import (
     count_parameters,
     load_grown_state,
     model_config_dict,
+    model_from_payload,
     read_model_config,
     restorer_unet_from_world_model,
 )
+from recondreamer.restorer.refiner import PixelRefiner
 from recondreamer.restorer.unet import LatentUNet
 
 LOG = logging.getLogger(__name__)
@@ -553,5 +565,129 @@ def train_restorer(
         world_model=str(world_model_path), training_scenes=sorted(scenes),
         initialised_from=None if init_from is None else str(init_from),
     )
+    finish_job(out)
+    return stats
+
+
+# ----------------------------------------------------------------------------------------------
+# Pixel refiner
+# ----------------------------------------------------------------------------------------------
+
+
+def restorer_digest(restorer: GenerativeModel) -> str:
+    """A short hash of what a restorer outputs: its UNet weights, autoencoder and restore defaults
+    (names the caches of its restored pairs, ``data.restored_pair_frames``)."""
+    digest = hashlib.sha1(autoencoder_digest(restorer.autoencoder).encode())
+    digest.update(json.dumps(config_to_dict(restorer.restore_config), sort_keys=True).encode())
+    for name, tensor in sorted(restorer.unet.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    return digest.hexdigest()[:12]
+
+
+@dataclasses.dataclass
+class RefinerExample:
+    """The frames of one pairs file a refiner trains on (arrays memory-mapped from caches)."""
+
+    scene_id: str
+    gt: np.ndarray  # (T,H,W,3) uint8
+    degraded: np.ndarray  # (K,T,H,W,3) uint8
+    restored: np.ndarray  # (K,T,H,W,3) uint8: the restorer's output for each degraded stage
+    structure: np.ndarray | None  # (T,S,H,W) uint8, None for a refiner without structure maps
+
+
+def load_refiner_examples(files: list[Path], restorer: GenerativeModel, with_structure: bool) -> list[RefinerExample]:
+    """Every pairs file with the restorer's output for each of its stages (restored once, then cached)."""
+    from recondreamer.restorer.inference import restore_clip
+
+    def restore(frames: np.ndarray, structure: np.ndarray) -> np.ndarray:
+        return restore_clip(restorer, frames, structure if restorer.unet_config.uses_structure else None, refine=False)
+
+    digest = restorer_digest(restorer)
+    examples = []
+    started = time.process_time()
+    for index, path in enumerate(files):
+        content = load_pairs_file(path)
+        restored = restored_pair_frames(path, content, restore, digest)
+        mapped = mapped_pair_arrays(path, content)
+        examples.append(RefinerExample(
+            scene_id=str(content["scene_id"]), gt=mapped["gt"], degraded=mapped["degraded"], restored=restored,
+            structure=mapped["structure"] if with_structure else None,
+        ))
+        del content
+        LOG.info("refiner pairs %d/%d %s (%.1f CPU min so far)", index + 1, len(files), path.name, (time.process_time() - started) / 60.0)
+    return examples
+
+
+def sample_refiner_batch(examples: list[RefinerExample], rng: np.random.Generator, config: RefinerConfig) -> dict:
+    """Random square crops of single frames: restored, degraded, target (B,3,c,c) in [-1,1];
+    structure (B,S,c,c) in [0,1] or None."""
+    restored, degraded, target, structure = [], [], [], []
+    for _ in range(config.batch_size):
+        example = examples[rng.integers(len(examples))]
+        stage, frame = int(rng.integers(example.degraded.shape[0])), int(rng.integers(example.gt.shape[0]))
+        height, width = example.gt.shape[1:3]
+        if config.crop > min(height, width):
+            raise RecondreamerError(f"refiner crop {config.crop} is larger than the {width}x{height} frames")
+        y, x = int(rng.integers(height - config.crop + 1)), int(rng.integers(width - config.crop + 1))
+        rows, cols = slice(y, y + config.crop), slice(x, x + config.crop)
+        restored.append(example.restored[stage, frame, rows, cols])
+        degraded.append(example.degraded[stage, frame, rows, cols])
+        target.append(example.gt[frame, rows, cols])
+        if example.structure is not None:
+            structure.append(example.structure[frame, :, rows, cols])
+    return {
+        "restored": frames_to_tensor(np.stack(restored)),
+        "degraded": frames_to_tensor(np.stack(degraded)),
+        "target": frames_to_tensor(np.stack(target)),
+        "structure": structure_from_uint8(np.stack(structure)) if structure else None,
+    }
+
+
+def refiner_loss(refiner: PixelRefiner, examples: list[RefinerExample], rng: np.random.Generator, config: RefinerConfig) -> torch.Tensor:
+    """Pixel MSE ([-1,1] units) of the refined crops of one random batch against ground truth."""
+    batch = _batch_on(sample_refiner_batch(examples, rng, config), module_device(refiner))
+    refined = refiner(batch["restored"], batch["degraded"], batch["structure"])
+    return torch.mean((refined - batch["target"]) ** 2)
+
+
+def train_refiner(
+    restorer_path: str | os.PathLike,
+    files: list[Path],
+    config: RefinerConfig,
+    out: str | os.PathLike,
+    device: torch.device | str = "cpu",
+) -> dict:
+    """Train a pixel refiner on a restorer's outputs for the given pairs and write the restorer
+    with it (``out``: the restorer checkpoint plus a ``refiner`` entry; its training scenes are
+    those of both). Resumable like every job here."""
+    payload = load_checkpoint(restorer_path, "restorer")
+    if payload.get("refiner") is not None:
+        raise CheckpointError(f"{restorer_path}: this restorer already has a pixel refiner; train one on the restorer it was made from")
+    restorer = model_from_payload(payload, device)
+    with_structure = config.use_structure and restorer.unet_config.uses_structure
+    started = time.process_time()
+    examples = load_refiner_examples(files, restorer, with_structure)
+    restore_minutes = (time.process_time() - started) / 60.0  # restoring the pairs (unless cached) and mapping them
+    torch.manual_seed(config.seed)
+    refiner = PixelRefiner(config, len(restorer.structure_channels) if with_structure else 0).to(device)
+    LOG.info("pixel refiner: %d parameters, %d pairs files, structure maps %s", count_parameters(refiner), len(examples), with_structure)
+
+    def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
+        return refiner_loss(refiner, examples, rng, config)
+
+    identity = {"kind": "refiner", "arch": payload["arch"], "restorer": restorer_digest(restorer), "refiner": config_to_dict(config)}
+    stats = run_training_loop(
+        "pixel refiner", refiner, loss_fn, config.steps, config.learning_rate, config.warmup_steps, out, identity,
+        config.checkpoint_every, config.log_every, config.seed, ema_decay=config.ema_decay,
+    )
+    stats["pairs_cpu_minutes"] = restore_minutes
+    scenes = sorted({example.scene_id for example in examples} | set(payload.get("training_scenes", [])))
+    extra = {key: value for key, value in payload.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
+    extra.update(training_scenes=scenes, refiner={
+        "config": config_to_dict(config), "structure_channels": refiner.structure_channels, "state": refiner.state_dict(),
+        "metrics": stats, "restorer": str(restorer_path),
+    })
+    save_checkpoint(out, "restorer", payload["arch"], payload["config"], payload["state"], **extra)
     finish_job(out)
     return stats

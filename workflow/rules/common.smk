@@ -161,8 +161,10 @@ def eval_model_files():
 
 
 def restorer_checkpoint(arch):
-    """The DriveRestorer the ReconDreamer runs use: the configured local file, else the one trained here."""
-    return config["restorer"]["checkpoints"].get(arch) or results("models", f"restorer_{arch}.pt")
+    """The DriveRestorer the ReconDreamer runs use: the configured local file, else the one trained
+    here (with its pixel refiner when restorer.refiner_steps > 0)."""
+    trained = f"restorer_{arch}_refined.pt" if config["restorer"]["refiner_steps"] else f"restorer_{arch}.pt"
+    return config["restorer"]["checkpoints"].get(arch) or results("models", trained)
 
 
 def win_rates_file():

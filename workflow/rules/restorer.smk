@@ -1,5 +1,6 @@
 # Restoration pairs (renders of the original trajectory from under-trained snapshots, paired with
-# the ground truth; paper Fig. 3) and the DriveRestorer fine-tuning of each restorer backbone.
+# the ground truth; paper Fig. 3), the DriveRestorer fine-tuning of each restorer backbone and its
+# optional pixel refiner.
 
 
 rule make_pairs_segment:
@@ -73,3 +74,22 @@ rule train_restorer:
     shell:
         "recondreamer train-restorer --arch {wildcards.restorer} --world-model {input.world_model} "
         "--pairs {input.pairs} --out {output} {params.steps} {params.options} {params.mask} --threads {threads} > {log} 2>&1"
+
+
+rule train_refiner:
+    input:
+        restorer=results("models", "restorer_{restorer}.pt"),
+        pairs=pair_dirs(),
+    output:
+        results("models", "restorer_{restorer}_refined.pt"),
+    params:
+        options=" ".join((option("--steps", config["restorer"]["refiner_steps"]), option("--seed", config["restorer"]["seed"]))) + RESTORER_DEVICE,
+    threads: config["threads"]["restorer"]
+    priority: RESTORER_PATH_PRIORITY
+    log:
+        log_file("train_refiner", "{restorer}"),
+    benchmark:
+        benchmark_file("train_refiner", "{restorer}")
+    shell:
+        "recondreamer train-refiner --restorer {input.restorer} --pairs {input.pairs} --out {output} {params.options} "
+        "--threads {threads} > {log} 2>&1"

@@ -1,0 +1,111 @@
+"""Pixel refiner: an optional last stage of DriveRestorer that works at full frame resolution.
+
+The diffusion restorer works on latents four times smaller than the frames, and its output
+reaches pixels through the frozen decoder (with residual decoding, as a decoded change added to
+the render). Most of what a render gets wrong sits on edges (docs/restorer.md, session 7), i.e.
+at the scale the latents blur. The refiner is a small per-frame convolutional network that sees
+the restorer's output, the degraded render and the structure maps at full resolution and
+predicts a correction to the restorer's output. It plays the part of StableSR's controllable
+feature wrapping (a decoder stage fine-tuned on the diffusion model's outputs with features of the
+degraded input), written as a separate network in pixel space so the autoencoder stays untouched.
+
+It is trained after the restorer, on the restorer's own outputs for its training pairs
+(``training.train_refiner``), and its last conv is zero-initialised: a fresh refiner returns the
+restorer's output unchanged (tested), so it can only start from what the restorer gives.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from recondreamer.restorer.autoencoder import frames_to_tensor, tensor_to_frames
+from recondreamer.restorer.config import RefinerConfig
+from recondreamer.restorer.device import module_device
+
+
+class RefinerBlock(nn.Module):
+    """Two 3x3 convs with SiLU, residual (no normalisation: the refiner trains on crops and runs on whole frames)."""
+
+    def __init__(self, channels: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(channels, channels, 3, padding=1)
+        self.conv2 = nn.Conv2d(channels, channels, 3, padding=1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (N,C,H,W) -> (N,C,H,W)
+        return x + self.conv2(F.silu(self.conv1(F.silu(x))))
+
+
+class PixelRefiner(nn.Module):
+    """Two-level UNet in pixel space: (restored, degraded, structure) -> refined frame.
+
+    Widths ``w``, ``2w``, ``3w`` at full, half and quarter resolution; ``bottleneck_blocks`` residual
+    blocks at quarter resolution. Output: restored + correction, in [-1,1] pixel units.
+    """
+
+    def __init__(self, config: RefinerConfig, structure_channels: int):
+        super().__init__()
+        self.config = config
+        self.structure_channels = structure_channels
+        w = config.width
+        self.conv_in = nn.Conv2d(6 + structure_channels, w, 3, padding=1)
+        self.full_in = RefinerBlock(w)
+        self.down_half = nn.Conv2d(w, 2 * w, 3, stride=2, padding=1)
+        self.half_in = RefinerBlock(2 * w)
+        self.down_quarter = nn.Conv2d(2 * w, 3 * w, 3, stride=2, padding=1)
+        self.bottleneck = nn.Sequential(*(RefinerBlock(3 * w) for _ in range(config.bottleneck_blocks)))
+        self.up_half = nn.Conv2d(3 * w, 2 * w, 3, padding=1)
+        self.half_out = RefinerBlock(2 * w)
+        self.up_full = nn.Conv2d(2 * w, w, 3, padding=1)
+        self.full_out = RefinerBlock(w)
+        self.conv_out = nn.Conv2d(w, 3, 3, padding=1)
+        nn.init.zeros_(self.conv_out.weight)  # a fresh refiner returns the restorer's output
+        nn.init.zeros_(self.conv_out.bias)
+
+    def forward(
+        self,
+        restored: torch.Tensor,  # (N,3,H,W) in [-1,1]: the restorer's output
+        degraded: torch.Tensor,  # (N,3,H,W) in [-1,1]: the render it restored
+        structure: torch.Tensor | None = None,  # (N,S,H,W) in [0,1]
+    ) -> torch.Tensor:  # (N,3,H,W) in [-1,1] (not clipped)
+        self._check_inputs(restored, degraded, structure)
+        inputs = [restored, degraded] + ([structure] if self.structure_channels else [])
+        full = self.full_in(self.conv_in(torch.cat(inputs, dim=1)))
+        half = self.half_in(self.down_half(F.silu(full)))
+        quarter = self.bottleneck(self.down_quarter(F.silu(half)))
+        half = self.half_out(half + self.up_half(F.interpolate(quarter, size=half.shape[-2:], mode="nearest")))
+        full = self.full_out(full + self.up_full(F.interpolate(half, size=full.shape[-2:], mode="nearest")))
+        return restored + self.conv_out(F.silu(full))
+
+    def _check_inputs(self, restored, degraded, structure) -> None:
+        if restored.dim() != 4 or restored.shape[1] != 3:
+            raise ValueError(f"restored frames must be (N,3,H,W), got {tuple(restored.shape)}")
+        if degraded.shape != restored.shape:
+            raise ValueError(f"degraded frames have shape {tuple(degraded.shape)}, expected {tuple(restored.shape)} like the restored ones")
+        if self.structure_channels:
+            expected = (restored.shape[0], self.structure_channels, *restored.shape[2:])
+            if structure is None or tuple(structure.shape) != expected:
+                got = None if structure is None else tuple(structure.shape)
+                raise ValueError(f"the refiner needs structure maps of shape {expected}, got {got}")
+
+
+@torch.no_grad()
+def refine_frames(
+    refiner: PixelRefiner,
+    restored: np.ndarray,  # (T,H,W,3) uint8
+    degraded: np.ndarray,  # (T,H,W,3) uint8
+    structure: torch.Tensor | None,  # (T,S,H,W) float in [0,1], or None for a refiner without structure
+    batch_frames: int = 8,
+) -> np.ndarray:  # (T,H,W,3) uint8
+    """Refine a restored clip frame by frame (``batch_frames`` at a time, to bound memory)."""
+    device = module_device(refiner)
+    refiner.eval()
+    out = []
+    for start in range(0, len(restored), batch_frames):
+        frames = slice(start, start + batch_frames)
+        maps = None if structure is None or not refiner.structure_channels else structure[frames].to(device)
+        refined = refiner(frames_to_tensor(restored[frames]).to(device), frames_to_tensor(degraded[frames]).to(device), maps)
+        out.append(tensor_to_frames(refined))
+    return np.concatenate(out)
