@@ -21,28 +21,17 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from recondreamer.restorer.autoencoder import frames_to_tensor, tensor_to_frames
+from recondreamer.restorer.autoencoder import PlainResBlock, frames_to_tensor, tensor_to_frames
 from recondreamer.restorer.config import RefinerConfig
 from recondreamer.restorer.device import module_device
-
-
-class RefinerBlock(nn.Module):
-    """Two 3x3 convs with SiLU, residual (no normalisation: the refiner trains on crops and runs on whole frames)."""
-
-    def __init__(self, channels: int):
-        super().__init__()
-        self.conv1 = nn.Conv2d(channels, channels, 3, padding=1)
-        self.conv2 = nn.Conv2d(channels, channels, 3, padding=1)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (N,C,H,W) -> (N,C,H,W)
-        return x + self.conv2(F.silu(self.conv1(F.silu(x))))
 
 
 class PixelRefiner(nn.Module):
     """Two-level UNet in pixel space: (restored, degraded, structure) -> refined frame.
 
     Widths ``w``, ``2w``, ``3w`` at full, half and quarter resolution; ``bottleneck_blocks`` residual
-    blocks at quarter resolution. Output: restored + correction, in [-1,1] pixel units.
+    blocks at quarter resolution (the autoencoder's plain residual blocks: no normalisation, since
+    the refiner trains on crops and runs on whole frames). Output: restored + correction, in [-1,1] pixel units.
     """
 
     def __init__(self, config: RefinerConfig, structure_channels: int):
@@ -51,15 +40,15 @@ class PixelRefiner(nn.Module):
         self.structure_channels = structure_channels
         w = config.width
         self.conv_in = nn.Conv2d(6 + structure_channels, w, 3, padding=1)
-        self.full_in = RefinerBlock(w)
+        self.full_in = PlainResBlock(w)
         self.down_half = nn.Conv2d(w, 2 * w, 3, stride=2, padding=1)
-        self.half_in = RefinerBlock(2 * w)
+        self.half_in = PlainResBlock(2 * w)
         self.down_quarter = nn.Conv2d(2 * w, 3 * w, 3, stride=2, padding=1)
-        self.bottleneck = nn.Sequential(*(RefinerBlock(3 * w) for _ in range(config.bottleneck_blocks)))
+        self.bottleneck = nn.Sequential(*(PlainResBlock(3 * w) for _ in range(config.bottleneck_blocks)))
         self.up_half = nn.Conv2d(3 * w, 2 * w, 3, padding=1)
-        self.half_out = RefinerBlock(2 * w)
+        self.half_out = PlainResBlock(2 * w)
         self.up_full = nn.Conv2d(2 * w, w, 3, padding=1)
-        self.full_out = RefinerBlock(w)
+        self.full_out = PlainResBlock(w)
         self.conv_out = nn.Conv2d(w, 3, 3, padding=1)
         nn.init.zeros_(self.conv_out.weight)  # a fresh refiner returns the restorer's output
         nn.init.zeros_(self.conv_out.bias)
