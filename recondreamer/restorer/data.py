@@ -178,12 +178,17 @@ def find_pairs_files(dirs: list[str | os.PathLike]) -> list[Path]:
     return files
 
 
+def hash_weights(digest, module: torch.nn.Module) -> None:  # digest: a hashlib object, e.g. hashlib.sha1()
+    """Feed every weight (and buffer) of ``module`` to ``digest``, by name in sorted order."""
+    for name, tensor in sorted(module.state_dict().items()):
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+
+
 def autoencoder_digest(autoencoder: Autoencoder) -> str:
     """A short hash of the autoencoder's weights and latent statistics: names its latent caches."""
     digest = hashlib.sha1()
-    for name, tensor in sorted(autoencoder.state_dict().items()):
-        digest.update(name.encode())
-        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    hash_weights(digest, autoencoder)
     return digest.hexdigest()[:12]
 
 

@@ -38,6 +38,7 @@ from recondreamer.restorer.config import (
 from recondreamer.restorer.data import (
     Sequence,
     autoencoder_digest,
+    hash_weights,
     load_pairs_file,
     mapped_pair_arrays,
     restored_pair_frames,
@@ -579,9 +580,7 @@ def restorer_digest(restorer: GenerativeModel) -> str:
     (names the caches of its restored pairs, ``data.restored_pair_frames``)."""
     digest = hashlib.sha1(autoencoder_digest(restorer.autoencoder).encode())
     digest.update(json.dumps(config_to_dict(restorer.restore_config), sort_keys=True).encode())
-    for name, tensor in sorted(restorer.unet.state_dict().items()):
-        digest.update(name.encode())
-        digest.update(tensor.detach().cpu().contiguous().numpy().tobytes())
+    hash_weights(digest, restorer.unet)
     return digest.hexdigest()[:12]
 
 
@@ -596,14 +595,14 @@ class RefinerExample:
     structure: np.ndarray | None  # (T,S,H,W) uint8, None for a refiner without structure maps
 
 
-def load_refiner_examples(files: list[Path], restorer: GenerativeModel, with_structure: bool) -> list[RefinerExample]:
-    """Every pairs file with the restorer's output for each of its stages (restored once, then cached)."""
+def load_refiner_examples(files: list[Path], restorer: GenerativeModel, digest: str, with_structure: bool) -> list[RefinerExample]:
+    """Every pairs file with the restorer's output for each of its stages (restored once, then cached
+    under the restorer's ``digest``, ``restorer_digest``)."""
     from recondreamer.restorer.inference import restore_clip
 
     def restore(frames: np.ndarray, structure: np.ndarray) -> np.ndarray:
         return restore_clip(restorer, frames, structure if restorer.unet_config.uses_structure else None, refine=False)
 
-    digest = restorer_digest(restorer)
     examples = []
     started = time.process_time()
     for index, path in enumerate(files):
@@ -666,8 +665,9 @@ def train_refiner(
         raise CheckpointError(f"{restorer_path}: this restorer already has a pixel refiner; train one on the restorer it was made from")
     restorer = model_from_payload(payload, device)
     with_structure = config.use_structure and restorer.unet_config.uses_structure
+    digest = restorer_digest(restorer)  # names the cached outputs and the resume file's job
     started = time.process_time()
-    examples = load_refiner_examples(files, restorer, with_structure)
+    examples = load_refiner_examples(files, restorer, digest, with_structure)
     restore_minutes = (time.process_time() - started) / 60.0  # restoring the pairs (unless cached) and mapping them
     torch.manual_seed(config.seed)
     refiner = PixelRefiner(config, len(restorer.structure_channels) if with_structure else 0).to(device)
@@ -676,7 +676,7 @@ def train_refiner(
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
         return refiner_loss(refiner, examples, rng, config)
 
-    identity = {"kind": "refiner", "arch": payload["arch"], "restorer": restorer_digest(restorer), "refiner": config_to_dict(config)}
+    identity = {"kind": "refiner", "arch": payload["arch"], "restorer": digest, "refiner": config_to_dict(config)}
     stats = run_training_loop(
         "pixel refiner", refiner, loss_fn, config.steps, config.learning_rate, config.warmup_steps, out, identity,
         config.checkpoint_every, config.log_every, config.seed, ema_decay=config.ema_decay,
