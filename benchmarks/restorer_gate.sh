@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -18 runs under results/restorer-dev/s8/ .. s18/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -19 runs under results/restorer-dev/s8/ .. s19/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -327,3 +327,19 @@ done
 for name in r3000_ref13 r3000_ref15unseen r3000_ref28_6000 r3000_ref28_6000_lr5e-4; do score "$S18" $name; done
 run "$S18/pixel_baseline_13sc.pt" "$S18/pixel_baseline_13sc.log" python benchmarks/pixel_baseline.py --pairs $PAIRS \
   --heldout "$DEV/pairs-heldout" --steps 3000 --learning-rate 1e-3 --out "$S18/pixel_baseline_13sc.pt"
+
+# Session 19 (docs/restorer.md, "Results (session 19)"): does the pixel refiner gain from seeing
+# the frames around each one (--temporal-neighbours)? A dd2_mask restorer trained 2000 whole-latent
+# steps from the world model on the 13 scenes' pairs (EMA 0.998), then two refiners on its outputs
+# for the pairs of UNSEEN19 (scenes it never saw), the same in all but the neighbours: per frame
+# (the session-18 refiner) and two frames before and after.
+S19=$DEV/s19
+mkdir -p "$S19"
+run "$S19/r2000.pt" "$S19/r2000.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S19/r2000.pt" \
+  --steps 2000 --ema-decay 0.998 --seed 0
+UNSEEN19=$(pairs_of $(scenes $(seq 13 19) $(seq 23 36)))
+for neighbours in 0 2; do
+  run "$S19/r2000_ref_n$neighbours.pt" "$S19/r2000_ref_n$neighbours.log" $RC train-refiner --restorer "$S19/r2000.pt" \
+    --pairs $UNSEEN19 --out "$S19/r2000_ref_n$neighbours.pt" --steps 5000 --temporal-neighbours $neighbours --threads 1
+  score "$S19" r2000_ref_n$neighbours
+done

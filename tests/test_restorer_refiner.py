@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import numpy as np
@@ -18,13 +19,14 @@ from recondreamer.restorer.config import RefinerConfig, RestoreConfig
 from recondreamer.restorer.data import restored_pair_frames, structure_from_uint8
 from recondreamer.restorer.inference import load_restorer, restore_clip
 from recondreamer.restorer.models import autoencoder_payload, model_config_dict
-from recondreamer.restorer.refiner import PixelRefiner, refine_frames
+from recondreamer.restorer.refiner import PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
 from recondreamer.restorer.training import RefinerExample, restorer_digest, sample_refiner_batch, train_refiner
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 TINY = RefinerConfig(width=4, bottleneck_blocks=1, steps=4, batch_size=2, crop=16, checkpoint_every=2, log_every=2)
+TEMPORAL = dataclasses.replace(TINY, temporal_neighbours=2)
 FRAMES = 5
 
 
@@ -67,6 +69,27 @@ def test_the_refiner_is_per_frame():
     assert torch.allclose(together, alone, atol=1e-6)
 
 
+def test_neighbour_frames_stand_in_with_the_clip_ends():
+    assert neighbour_frames(2, 5, 2) == [0, 1, 3, 4]
+    assert neighbour_frames(0, 5, 2) == [0, 0, 1, 2]
+    assert neighbour_frames(4, 5, 1) == [3, 4]
+    assert neighbour_frames(0, 1, 1) == [0, 0]
+
+
+def test_a_temporal_refiner_starts_as_the_identity_and_sees_its_neighbours():
+    torch.manual_seed(0)
+    restored, degraded, structure = random_frames(2, 0), random_frames(2, 1), torch.rand(2, len(STRUCTURE), H, W)
+    neighbours = torch.rand(2, 4, 6, H, W) * 2.0 - 1.0
+    assert torch.equal(PixelRefiner(TEMPORAL, len(STRUCTURE))(restored, degraded, structure, neighbours), restored)
+    refiner = randomised(PixelRefiner(TEMPORAL, len(STRUCTURE)))
+    base = refiner(restored, degraded, structure, neighbours)
+    for k in range(4):  # every neighbour, restored and degraded channels alike
+        for channels in (slice(0, 3), slice(3, 6)):
+            changed = neighbours.clone()
+            changed[:, k, channels] = 0.0
+            assert not torch.allclose(refiner(restored, degraded, structure, changed), base)
+
+
 def test_bad_inputs_give_clear_errors():
     refiner = PixelRefiner(TINY, len(STRUCTURE))
     restored = random_frames(2, 0)
@@ -76,6 +99,13 @@ def test_bad_inputs_give_clear_errors():
         refiner(restored, random_frames(2, 1), None)
     with pytest.raises(ValueError, match="restored frames must be"):
         refiner(restored[:, :2], random_frames(2, 1)[:, :2], torch.rand(2, len(STRUCTURE), H, W))
+    with pytest.raises(ValueError, match="sees single frames"):
+        refiner(restored, random_frames(2, 1), torch.rand(2, len(STRUCTURE), H, W), torch.zeros(2, 4, 6, H, W))
+    temporal = PixelRefiner(TEMPORAL, 0)
+    with pytest.raises(ValueError, match=re.escape(f"needs neighbour frames of shape (2, 4, 6, {H}, {W})")):
+        temporal(restored, random_frames(2, 1), None, torch.zeros(2, 2, 6, H, W))
+    with pytest.raises(ValueError, match="needs neighbour frames"):
+        temporal(restored, random_frames(2, 1))
 
 
 def test_one_training_step_lowers_the_loss_on_a_fixed_batch():
@@ -106,6 +136,21 @@ def test_refine_frames_matches_the_module_in_batches():
         expected = refiner(frames_to_tensor(restored), frames_to_tensor(degraded), structure)
     expected = ((expected.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 1).numpy()
     assert out.dtype == np.uint8 and np.array_equal(out, expected)
+
+
+def test_a_temporal_refiner_sees_the_clip_around_each_frame_across_batches():
+    torch.manual_seed(0)
+    refiner = randomised(PixelRefiner(TEMPORAL, 0))
+    rng = np.random.default_rng(0)
+    restored = rng.integers(0, 256, (5, H, W, 3), dtype=np.uint8)
+    degraded = rng.integers(0, 256, (5, H, W, 3), dtype=np.uint8)
+    out = refine_frames(refiner, restored, degraded, None, batch_frames=2)
+    for t in range(5):  # frame by frame, its neighbours gathered by hand
+        around = [min(max(t + offset, 0), 4) for offset in (-2, -1, 1, 2)]
+        neighbours = torch.cat([frames_to_tensor(restored[around]), frames_to_tensor(degraded[around])], dim=1)[None]
+        with torch.no_grad():
+            expected = refiner(frames_to_tensor(restored[t : t + 1]), frames_to_tensor(degraded[t : t + 1]), None, neighbours)
+        assert np.array_equal(out[t : t + 1], ((expected.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 1).numpy())
 
 
 def tiny_restorer_file(path: Path, seed: int = 0) -> Path:
@@ -159,6 +204,21 @@ def test_train_refiner_writes_the_restorer_with_its_refiner_and_restore_uses_it(
 
     with pytest.raises(CheckpointError, match="already has a pixel refiner"):
         train_refiner(tmp_path / "refined.pt", [pairs], TINY, tmp_path / "again.pt")
+
+
+def test_a_temporal_refiner_trains_from_the_command_line_and_is_reloaded_as_trained(tmp_path):
+    restorer_path = tiny_restorer_file(tmp_path / "r.pt")
+    pairs = tiny_pairs_file(tmp_path / "corpus-002__street.npz", "corpus-002")
+    out = tmp_path / "refined.pt"
+    assert main(["train-refiner", "--restorer", str(restorer_path), "--pairs", str(pairs), "--out", str(out), "--steps", "2",
+                 "--batch-size", "2", "--crop", "16", "--width", "4", "--temporal-neighbours", "1"]) == 0
+    refined = load_restorer(out)
+    assert refined.refiner.config.temporal_neighbours == 1
+    with np.load(pairs) as content:
+        degraded, structure = content["degraded"][0], content["structure"]
+    diffusion_only = restore_clip(refined, degraded, structure, refine=False)
+    expected = refine_frames(refined.refiner, diffusion_only, degraded, structure_from_uint8(structure))
+    assert np.array_equal(restore_clip(refined, degraded, structure), expected)
 
 
 def test_a_killed_refiner_job_resumes_and_matches_an_uninterrupted_one(tmp_path):
@@ -232,6 +292,16 @@ def test_refiner_batches_are_aligned_crops():
         assert len(stages) == 1
         assert torch.equal(batch["restored"][i], frames_to_tensor(restored[stages[0], t : t + 1, y : y + 16, x : x + 16])[0])
         assert torch.equal(batch["structure"][i], structure_from_uint8(structure[t, :, y : y + 16, x : x + 16]))
+    assert batch["neighbours"] is None
+    batch = sample_refiner_batch([example], np.random.default_rng(1), dataclasses.replace(TEMPORAL, batch_size=3))
+    for i in range(3):  # the neighbours are the same crop of the same stage's frames around
+        (t, y, x), = [
+            (t, y, x) for t in range(3) for y in range(H - 15) for x in range(W - 15)
+            if torch.equal(batch["target"][i], frames_to_tensor(gt[t : t + 1, y : y + 16, x : x + 16])[0])
+        ]
+        stage, = [k for k in range(2) if torch.equal(batch["degraded"][i], frames_to_tensor(degraded[k, t : t + 1, y : y + 16, x : x + 16])[0])]
+        rows, cols = slice(y, y + 16), slice(x, x + 16)
+        assert torch.equal(batch["neighbours"][i], neighbour_stack(restored[stage], degraded[stage], t, 2, rows, cols))
     with pytest.raises(RecondreamerError, match="larger than"):
         sample_refiner_batch([example], np.random.default_rng(1), dataclasses.replace(TINY, crop=H + 1))
 
@@ -244,5 +314,7 @@ def test_train_refiner_command_rejects_bad_options(tmp_path, capsys):
     assert "--crop must be >= 1" in capsys.readouterr().err
     assert main([*base, "--ema-decay", "1.5"]) == 1
     assert "--ema-decay must be in [0, 1)" in capsys.readouterr().err
+    assert main([*base, "--temporal-neighbours", "-1"]) == 1
+    assert "--temporal-neighbours must be >= 0" in capsys.readouterr().err
     assert main(["train-refiner", "--restorer", str(pairs), "--pairs", str(pairs), "--out", str(tmp_path / "o.pt")]) == 1
     assert not (tmp_path / "o.pt").exists()

@@ -98,6 +98,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--batch-size", type=int, default=None, help="pixel crops per step (default 8)")
     p.add_argument("--crop", type=int, default=None, help="side of the square training crops in pixels (default 64)")
     p.add_argument("--width", type=int, default=None, help="refiner channels at full resolution (default 24)")
+    p.add_argument("--temporal-neighbours", type=int, default=None,
+                   help="also show the refiner this many restored and degraded frames before and after each one (default 0)")
     p.add_argument("--learning-rate", type=float, default=None, help="AdamW learning rate (default 5e-4)")
     p.add_argument("--ema-decay", type=float, default=None, help="EMA of the weights saved instead of the last ones (default 0: off)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
@@ -330,11 +332,14 @@ def run_train_refiner(args: argparse.Namespace) -> int:
     overrides = {
         "steps": args.steps, "batch_size": args.batch_size, "crop": args.crop, "width": args.width,
         "learning_rate": args.learning_rate, "ema_decay": args.ema_decay, "seed": args.seed,
+        "temporal_neighbours": args.temporal_neighbours,
     }
     config = dataclasses.replace(RefinerConfig(), use_structure=not args.no_structure, **{k: v for k, v in overrides.items() if v is not None})
     for name in ("steps", "batch_size", "crop", "width"):
         if getattr(config, name) < 1:
             raise RecondreamerError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
+    if config.temporal_neighbours < 0:
+        raise RecondreamerError(f"--temporal-neighbours must be >= 0, got {config.temporal_neighbours}")
     if not 0.0 <= config.ema_decay < 1.0:
         raise RecondreamerError(f"--ema-decay must be in [0, 1), got {config.ema_decay}")
     _set_threads(args)

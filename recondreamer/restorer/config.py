@@ -154,6 +154,7 @@ class RefinerConfig:
     width: int = 24  # channels at full resolution (2x at half, 3x at quarter resolution)
     bottleneck_blocks: int = 3  # residual blocks at quarter resolution
     use_structure: bool = True  # also see the structure maps (dd2 archs' conditions)
+    temporal_neighbours: int = 0  # also see the restored and degraded frames this many frames before and after (0: per frame)
     steps: int = 3000
     batch_size: int = 8  # crops per step
     crop: int = 64  # crop side in pixels

@@ -5,7 +5,9 @@ reaches pixels through the frozen decoder (with residual decoding, as a decoded 
 the render). Most of what a render gets wrong sits on edges (docs/restorer.md, session 7), i.e.
 at the scale the latents blur. The refiner is a small per-frame convolutional network that sees
 the restorer's output, the degraded render and the structure maps at full resolution and
-predicts a correction to the restorer's output. It plays the part of StableSR's controllable
+predicts a correction to the restorer's output; with ``temporal_neighbours`` it also sees the
+restored and degraded frames just before and after, whose renders show the same surfaces from
+nearby viewpoints with different artifacts. It plays the part of StableSR's controllable
 feature wrapping (a decoder stage fine-tuned on the diffusion model's outputs with features of the
 degraded input), written as a separate network in pixel space so the autoencoder stays untouched.
 
@@ -27,7 +29,7 @@ from recondreamer.restorer.device import module_device
 
 
 class PixelRefiner(nn.Module):
-    """Two-level UNet in pixel space: (restored, degraded, structure) -> refined frame.
+    """Two-level UNet in pixel space: (restored, degraded, neighbours, structure) -> refined frame.
 
     Widths ``w``, ``2w``, ``3w`` at full, half and quarter resolution; ``bottleneck_blocks`` residual
     blocks at quarter resolution (the autoencoder's plain residual blocks: no normalisation, since
@@ -39,7 +41,8 @@ class PixelRefiner(nn.Module):
         self.config = config
         self.structure_channels = structure_channels
         w = config.width
-        self.conv_in = nn.Conv2d(6 + structure_channels, w, 3, padding=1)
+        neighbour_channels = 2 * config.temporal_neighbours * 6  # restored and degraded frames on each side
+        self.conv_in = nn.Conv2d(6 + neighbour_channels + structure_channels, w, 3, padding=1)
         self.full_in = PlainResBlock(w)
         self.down_half = nn.Conv2d(w, 2 * w, 3, stride=2, padding=1)
         self.half_in = PlainResBlock(2 * w)
@@ -58,9 +61,14 @@ class PixelRefiner(nn.Module):
         restored: torch.Tensor,  # (N,3,H,W) in [-1,1]: the restorer's output
         degraded: torch.Tensor,  # (N,3,H,W) in [-1,1]: the render it restored
         structure: torch.Tensor | None = None,  # (N,S,H,W) in [0,1]
+        neighbours: torch.Tensor | None = None,  # (N,2n,6,H,W) in [-1,1]: ``neighbour_stack``, n = temporal_neighbours
     ) -> torch.Tensor:  # (N,3,H,W) in [-1,1] (not clipped)
-        self._check_inputs(restored, degraded, structure)
-        inputs = [restored, degraded] + ([structure] if self.structure_channels else [])
+        self._check_inputs(restored, degraded, structure, neighbours)
+        inputs = [restored, degraded]
+        if self.config.temporal_neighbours:
+            inputs.append(neighbours.flatten(1, 2))
+        if self.structure_channels:
+            inputs.append(structure)
         full = self.full_in(self.conv_in(torch.cat(inputs, dim=1)))
         half = self.half_in(self.down_half(F.silu(full)))
         quarter = self.bottleneck(self.down_quarter(F.silu(half)))
@@ -68,7 +76,7 @@ class PixelRefiner(nn.Module):
         full = self.full_out(full + self.up_full(F.interpolate(half, size=full.shape[-2:], mode="nearest")))
         return restored + self.conv_out(F.silu(full))
 
-    def _check_inputs(self, restored, degraded, structure) -> None:
+    def _check_inputs(self, restored, degraded, structure, neighbours) -> None:
         if restored.dim() != 4 or restored.shape[1] != 3:
             raise ValueError(f"restored frames must be (N,3,H,W), got {tuple(restored.shape)}")
         if degraded.shape != restored.shape:
@@ -78,6 +86,33 @@ class PixelRefiner(nn.Module):
             if structure is None or tuple(structure.shape) != expected:
                 got = None if structure is None else tuple(structure.shape)
                 raise ValueError(f"the refiner needs structure maps of shape {expected}, got {got}")
+        if self.config.temporal_neighbours:
+            expected = (restored.shape[0], 2 * self.config.temporal_neighbours, 6, *restored.shape[2:])
+            if neighbours is None or tuple(neighbours.shape) != expected:
+                got = None if neighbours is None else tuple(neighbours.shape)
+                raise ValueError(f"the refiner needs neighbour frames of shape {expected} (temporal_neighbours "
+                                 f"{self.config.temporal_neighbours}), got {got}")
+        elif neighbours is not None:
+            raise ValueError("this refiner sees single frames (temporal_neighbours 0) but was given neighbour frames")
+
+
+def neighbour_frames(frame: int, length: int, count: int) -> list[int]:
+    """The ``count`` frames before and after ``frame`` in a clip of ``length`` frames, in order
+    (t-count .. t-1, t+1 .. t+count); past the clip's ends its first or last frame stands in."""
+    return [min(max(frame + offset, 0), length - 1) for offset in range(-count, count + 1) if offset != 0]
+
+
+def neighbour_stack(
+    restored: np.ndarray,  # (T,H,W,3) uint8: a restored clip
+    degraded: np.ndarray,  # (T,H,W,3) uint8: the renders it was restored from
+    frame: int,
+    count: int,
+    rows: slice = slice(None),
+    cols: slice = slice(None),
+) -> torch.Tensor:  # (2*count,6,h,w) in [-1,1]: restored then degraded channels of each neighbour
+    """The refiner's ``neighbours`` input for one frame of a clip (``rows``/``cols``: a crop of it)."""
+    indices = neighbour_frames(frame, len(restored), count)
+    return torch.cat([frames_to_tensor(restored[indices, rows, cols]), frames_to_tensor(degraded[indices, rows, cols])], dim=1)
 
 
 @torch.no_grad()
@@ -88,13 +123,18 @@ def refine_frames(
     structure: torch.Tensor | None,  # (T,S,H,W) float in [0,1], or None for a refiner without structure
     batch_frames: int = 8,
 ) -> np.ndarray:  # (T,H,W,3) uint8
-    """Refine a restored clip frame by frame (``batch_frames`` at a time, to bound memory)."""
+    """Refine a restored clip frame by frame (``batch_frames`` at a time, to bound memory; a
+    refiner with temporal neighbours sees the clip's frames around each one)."""
     device = module_device(refiner)
     refiner.eval()
+    count = refiner.config.temporal_neighbours
     out = []
     for start in range(0, len(restored), batch_frames):
         frames = slice(start, start + batch_frames)
         maps = None if structure is None or not refiner.structure_channels else structure[frames].to(device)
-        refined = refiner(frames_to_tensor(restored[frames]).to(device), frames_to_tensor(degraded[frames]).to(device), maps)
+        neighbours = None
+        if count:
+            neighbours = torch.stack([neighbour_stack(restored, degraded, t, count) for t in range(*frames.indices(len(restored)))]).to(device)
+        refined = refiner(frames_to_tensor(restored[frames]).to(device), frames_to_tensor(degraded[frames]).to(device), maps, neighbours)
         out.append(tensor_to_frames(refined))
     return np.concatenate(out)

@@ -57,7 +57,7 @@ from recondreamer.restorer.models import (
     read_model_config,
     restorer_unet_from_world_model,
 )
-from recondreamer.restorer.refiner import PixelRefiner
+from recondreamer.restorer.refiner import PixelRefiner, neighbour_stack
 from recondreamer.restorer.unet import LatentUNet
 
 LOG = logging.getLogger(__name__)
@@ -620,8 +620,9 @@ def load_refiner_examples(files: list[Path], restorer: GenerativeModel, digest: 
 
 def sample_refiner_batch(examples: list[RefinerExample], rng: np.random.Generator, config: RefinerConfig) -> dict:
     """Random square crops of single frames: restored, degraded, target (B,3,c,c) in [-1,1];
-    structure (B,S,c,c) in [0,1] or None."""
-    restored, degraded, target, structure = [], [], [], []
+    structure (B,S,c,c) in [0,1] or None; neighbours (B,2n,6,c,c) in [-1,1] (the same crop of the
+    frames around, ``refiner.neighbour_stack``) or None when ``config.temporal_neighbours`` is 0."""
+    restored, degraded, target, structure, neighbours = [], [], [], [], []
     for _ in range(config.batch_size):
         example = examples[rng.integers(len(examples))]
         stage, frame = int(rng.integers(example.degraded.shape[0])), int(rng.integers(example.gt.shape[0]))
@@ -635,18 +636,21 @@ def sample_refiner_batch(examples: list[RefinerExample], rng: np.random.Generato
         target.append(example.gt[frame, rows, cols])
         if example.structure is not None:
             structure.append(example.structure[frame, :, rows, cols])
+        if config.temporal_neighbours:
+            neighbours.append(neighbour_stack(example.restored[stage], example.degraded[stage], frame, config.temporal_neighbours, rows, cols))
     return {
         "restored": frames_to_tensor(np.stack(restored)),
         "degraded": frames_to_tensor(np.stack(degraded)),
         "target": frames_to_tensor(np.stack(target)),
         "structure": structure_from_uint8(np.stack(structure)) if structure else None,
+        "neighbours": torch.stack(neighbours) if neighbours else None,
     }
 
 
 def refiner_loss(refiner: PixelRefiner, examples: list[RefinerExample], rng: np.random.Generator, config: RefinerConfig) -> torch.Tensor:
     """Pixel MSE ([-1,1] units) of the refined crops of one random batch against ground truth."""
     batch = _batch_on(sample_refiner_batch(examples, rng, config), module_device(refiner))
-    refined = refiner(batch["restored"], batch["degraded"], batch["structure"])
+    refined = refiner(batch["restored"], batch["degraded"], batch["structure"], batch["neighbours"])
     return torch.mean((refined - batch["target"]) ** 2)
 
 
