@@ -343,3 +343,10 @@ for neighbours in 0 2; do
     --pairs $UNSEEN19 --out "$S19/r2000_ref_n$neighbours.pt" --steps 5000 --temporal-neighbours $neighbours --threads 1
   score "$S19" r2000_ref_n$neighbours
 done
+# The same two refiners with seed 1, scored on heldout2 only (the session's time ran short).
+for neighbours in 0 2; do
+  run "$S19/r2000_ref_n${neighbours}_seed1.pt" "$S19/r2000_ref_n${neighbours}_seed1.log" $RC train-refiner --restorer "$S19/r2000.pt" \
+    --pairs $UNSEEN19 --out "$S19/r2000_ref_n${neighbours}_seed1.pt" --steps 5000 --temporal-neighbours $neighbours --seed 1 --threads 1
+  python benchmarks/restorer.py --pairs "$DEV/pairs-heldout2" --stages-per-run 2 --steps 1 \
+    --restorer dd2_mask="$S19/r2000_ref_n${neighbours}_seed1.pt" --threads 1 | tee "$S19/heldout2_r2000_ref_n${neighbours}_seed1.txt"
+done
