@@ -13,7 +13,7 @@ from test_restorer_models import H, STRUCTURE, W, tiny_model
 
 from recondreamer.cli import main
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.restorer.autoencoder import frames_to_tensor
+from recondreamer.restorer.autoencoder import frames_to_tensor, tensor_to_frames
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import RefinerConfig, RestoreConfig
 from recondreamer.restorer.data import restored_pair_frames, structure_from_uint8
@@ -150,7 +150,7 @@ def test_a_temporal_refiner_sees_the_clip_around_each_frame_across_batches():
         neighbours = torch.cat([frames_to_tensor(restored[around]), frames_to_tensor(degraded[around])], dim=1)[None]
         with torch.no_grad():
             expected = refiner(frames_to_tensor(restored[t : t + 1]), frames_to_tensor(degraded[t : t + 1]), None, neighbours)
-        assert np.array_equal(out[t : t + 1], ((expected.clamp(-1, 1) + 1) * 127.5).round().to(torch.uint8).permute(0, 2, 3, 1).numpy())
+        assert np.array_equal(out[t : t + 1], tensor_to_frames(expected))
 
 
 def tiny_restorer_file(path: Path, seed: int = 0) -> Path:
