@@ -137,6 +137,7 @@ def test_refiner_steps_add_a_refiner_to_every_trained_restorer_and_the_runs_use_
     root = workflow_copy(tmp_path)
     config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
     config["restorer"]["refiner_steps"] = 40
+    config["restorer"]["refiner_neighbours"] = 2
     config["restorer"]["checkpoints"] = {"dd2": "my_dd2.pt"}  # a local restorer is used as it is
     (root / "my_dd2.pt").write_bytes(b"")
     (root / "refine.yaml").write_text(yaml.safe_dump(config))
@@ -146,7 +147,7 @@ def test_refiner_steps_add_a_refiner_to_every_trained_restorer_and_the_runs_use_
     assert job_counts(result.stdout) == {**plain, "train_restorer": plain["train_restorer"] - 1, "train_refiner": plain["train_restorer"] - 1,
                                          "total": plain["total"] + plain["train_restorer"] - 2}
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "refine.yaml", "--until", "train_recondreamer").stdout
-    refine = re.findall(r"recondreamer train-refiner --restorer \S+restorer_(\w+)\.pt .*?--out \S+restorer_(\w+)_refined\.pt --steps 40 --seed 0", shell)
+    refine = re.findall(r"recondreamer train-refiner --restorer \S+restorer_(\w+)\.pt .*?--out \S+restorer_(\w+)_refined\.pt --steps 40 --temporal-neighbours 2 --seed 0", shell)
     assert sorted(refine) == sorted((arch, arch) for arch in ("sd", "svd", "dd2_mask"))
     runs = [line for line in shell.splitlines() if "recondreamer train-recondreamer" in line]
     assert runs and all(re.search(r"--restorer (my_dd2\.pt|\S+_refined\.pt) ", line) for line in runs)

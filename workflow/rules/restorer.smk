@@ -83,7 +83,14 @@ rule train_refiner:
     output:
         results("models", "restorer_{restorer}_refined.pt"),
     params:
-        options=" ".join((option("--steps", config["restorer"]["refiner_steps"]), option("--seed", config["restorer"]["seed"]))) + RESTORER_DEVICE,
+        options=" ".join(
+            (
+                option("--steps", config["restorer"]["refiner_steps"]),
+                option("--temporal-neighbours", config["restorer"]["refiner_neighbours"]),
+                option("--seed", config["restorer"]["seed"]),
+            )
+        )
+        + RESTORER_DEVICE,
     threads: config["threads"]["restorer"]
     priority: RESTORER_PATH_PRIORITY
     log:
