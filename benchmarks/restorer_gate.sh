@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -19 runs under results/restorer-dev/s8/ .. s19/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -21 runs under results/restorer-dev/s8/ .. s21/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -350,3 +350,18 @@ for neighbours in 0 2; do
   python benchmarks/restorer.py --pairs "$DEV/pairs-heldout2" --stages-per-run 2 --steps 1 \
     --restorer dd2_mask="$S19/r2000_ref_n${neighbours}_seed1.pt" --threads 1 | tee "$S19/heldout2_r2000_ref_n${neighbours}_seed1.txt"
 done
+
+# Session 21 (docs/restorer.md, "Results (session 21)"): session 13's staged training on a short
+# budget: a dd2_mask restorer 1500 whole-latent steps from the world model on the 16 scenes made
+# first, then 1000 steps more on the 35 made by then (corpus-000..019, 023..037); a refiner with
+# two neighbours each side on its outputs for 12 of its own scenes and 12 it never saw
+# (corpus-038..049); and the same restorer restoring with windows that overlap by 4 frames instead of 2.
+S21=$DEV/s21
+mkdir -p "$S21"
+run "$S21/stage1.pt" "$S21/stage1.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 15))) \
+  --out "$S21/stage1.pt" --steps 1500 --ema-decay 0.998 --seed 0
+run "$S21/stage2.pt" "$S21/stage2.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 19) $(seq 23 37))) \
+  --init-restorer "$S21/stage1.pt" --out "$S21/stage2.pt" --steps 1000 --ema-decay 0.997 --seed 0
+run "$S21/stage2_ref.pt" "$S21/stage2_ref.log" $RC train-refiner --restorer "$S21/stage2.pt" \
+  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 38 49))) --out "$S21/stage2_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
+score "$S21" stage2_ref

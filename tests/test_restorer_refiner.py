@@ -20,7 +20,7 @@ from recondreamer.restorer.data import restored_pair_frames, structure_from_uint
 from recondreamer.restorer.inference import load_restorer, restore_clip
 from recondreamer.restorer.models import autoencoder_payload, model_config_dict
 from recondreamer.restorer.refiner import PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
-from recondreamer.restorer.training import RefinerExample, restorer_digest, sample_refiner_batch, train_refiner
+from recondreamer.restorer.training import RefinerExample, refiner_check_losses, restorer_digest, sample_refiner_batch, train_refiner
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -180,6 +180,7 @@ def test_train_refiner_writes_the_restorer_with_its_refiner_and_restore_uses_it(
     pairs = tiny_pairs_file(tmp_path / "corpus-002__street.npz", "corpus-002")
     stats = train_refiner(restorer_path, [pairs], TINY, tmp_path / "refined.pt")
     assert stats["steps"] == TINY.steps and np.isfinite(stats["final_loss"])
+    assert np.isfinite(stats["check_loss"]) and stats["identity_loss"] > 0.0
     payload = load_checkpoint(tmp_path / "refined.pt", "restorer")
     original = load_checkpoint(restorer_path, "restorer")
     assert payload["training_scenes"] == ["corpus-001", "corpus-002"]  # benchmarks skip both
@@ -318,3 +319,24 @@ def test_train_refiner_command_rejects_bad_options(tmp_path, capsys):
     assert "--temporal-neighbours must be >= 0" in capsys.readouterr().err
     assert main(["train-refiner", "--restorer", str(pairs), "--pairs", str(pairs), "--out", str(tmp_path / "o.pt")]) == 1
     assert not (tmp_path / "o.pt").exists()
+
+
+def test_the_check_losses_compare_the_refiner_with_the_identity():
+    rng = np.random.default_rng(0)
+    gt = rng.integers(0, 256, (3, H, W, 3), dtype=np.uint8)
+    restored = rng.integers(0, 256, (2, 3, H, W, 3), dtype=np.uint8)
+    example = RefinerExample("s", gt, rng.integers(0, 256, (2, 3, H, W, 3), dtype=np.uint8), restored, None)
+    fresh = PixelRefiner(TINY, 0)
+    refined, identity = refiner_check_losses(fresh, [example], TINY)
+    assert refined == identity > 0.0  # a fresh refiner returns its input exactly
+    refined, identity_again = refiner_check_losses(randomised(PixelRefiner(TINY, 0)), [example], TINY)
+    assert identity_again == identity and refined != identity  # fixed batches, whatever the refiner
+
+
+def test_a_refiner_that_does_not_beat_the_identity_is_warned_about(tmp_path, caplog):
+    restorer_path = tiny_restorer_file(tmp_path / "r.pt")
+    pairs = tiny_pairs_file(tmp_path / "corpus-002__street.npz", "corpus-002")
+    with caplog.at_level("WARNING"):
+        stats = train_refiner(restorer_path, [pairs], dataclasses.replace(TINY, learning_rate=0.0), tmp_path / "refined.pt")
+    assert stats["check_loss"] == stats["identity_loss"]  # never trained: still the identity
+    assert "is not below the restorer's own error" in caplog.text

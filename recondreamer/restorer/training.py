@@ -654,6 +654,25 @@ def refiner_loss(refiner: PixelRefiner, examples: list[RefinerExample], rng: np.
     return torch.mean((refined - batch["target"]) ** 2)
 
 
+REFINER_CHECK_BATCHES = 16  # fixed batches on which a finished refiner is compared with the identity
+
+
+@torch.no_grad()
+def refiner_check_losses(refiner: PixelRefiner, examples: list[RefinerExample], config: RefinerConfig) -> tuple[float, float]:
+    """(refined, identity): the pixel MSE of the refiner's output and of the restorer's output alone
+    on ``REFINER_CHECK_BATCHES`` batches drawn with a fixed seed. A refiner whose loss is not below the
+    identity's does not improve the restorer (session 21 saw one end with its correction switched off)."""
+    rng = np.random.default_rng(config.seed + 1)
+    device = module_device(refiner)
+    refined, identity = [], []
+    for _ in range(REFINER_CHECK_BATCHES):
+        batch = _batch_on(sample_refiner_batch(examples, rng, config), device)
+        output = refiner(batch["restored"], batch["degraded"], batch["structure"], batch["neighbours"])
+        refined.append(torch.mean((output - batch["target"]) ** 2).item())
+        identity.append(torch.mean((batch["restored"] - batch["target"]) ** 2).item())
+    return float(np.mean(refined)), float(np.mean(identity))
+
+
 def train_refiner(
     restorer_path: str | os.PathLike,
     files: list[Path],
@@ -686,6 +705,15 @@ def train_refiner(
         config.checkpoint_every, config.log_every, config.seed, ema_decay=config.ema_decay,
     )
     stats["pairs_cpu_minutes"] = restore_minutes
+    stats["check_loss"], stats["identity_loss"] = refiner_check_losses(refiner, examples, config)
+    if stats["check_loss"] >= stats["identity_loss"]:
+        LOG.warning(
+            "pixel refiner: its loss on fixed batches (%.5f) is not below the restorer's own error there (%.5f): "
+            "it does not improve the restorer's output; compare restoring with and without it before using it",
+            stats["check_loss"], stats["identity_loss"],
+        )
+    else:
+        LOG.info("pixel refiner: loss on fixed batches %.5f against %.5f for the restorer alone", stats["check_loss"], stats["identity_loss"])
     scenes = sorted({example.scene_id for example in examples} | set(payload.get("training_scenes", [])))
     extra = {key: value for key, value in payload.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
     extra.update(training_scenes=scenes, refiner={
