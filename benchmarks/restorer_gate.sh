@@ -355,7 +355,7 @@ done
 # budget: a dd2_mask restorer 1500 whole-latent steps from the world model on the 16 scenes made
 # first, then 1000 steps more on the 35 made by then (corpus-000..019, 023..037); a refiner with
 # two neighbours each side on its outputs for 12 of its own scenes and 12 it never saw
-# (corpus-038..049); and the same restorer restoring with windows that overlap by 4 frames instead of 2.
+# (corpus-038..049). (The 4-frame window overlap of the results was a scratch probe, not scripted.)
 S21=$DEV/s21
 mkdir -p "$S21"
 run "$S21/stage1.pt" "$S21/stage1.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 15))) \
