@@ -36,6 +36,8 @@ def main() -> None:
     parser.add_argument("--out", required=True, help="checkpoint of the trained network (and its resume file)")
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: RefinerConfig's, as train-refiner)")
     parser.add_argument("--learning-rate", type=float, default=None, help="learning rate (default: RefinerConfig's, as train-refiner)")
+    parser.add_argument("--no-output-norm", action="store_true",
+                        help="the network without the channel norm before its last conv (as train-refiner --no-output-norm)")
     parser.add_argument("--stages-per-run", type=int, default=2, help="held-out stages per pairs file, earliest to latest (0 = all; default 2)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args()
@@ -50,7 +52,7 @@ def main() -> None:
 
     torch.set_num_threads(args.threads)
     overrides = {"steps": args.steps, "learning_rate": args.learning_rate}
-    config = dataclasses.replace(RefinerConfig(), **{k: v for k, v in overrides.items() if v is not None})
+    config = dataclasses.replace(RefinerConfig(), output_norm=not args.no_output_norm, **{k: v for k, v in overrides.items() if v is not None})
     examples = []
     for path in find_pairs_files(args.pairs):
         content = load_pairs_file(path)

@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -21 runs under results/restorer-dev/s8/ .. s21/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -22 runs under results/restorer-dev/s8/ .. s22/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -310,23 +310,24 @@ score "$S17" wm3000_22sc_from8000_2000
 # alone, without restorer (benchmarks/pixel_baseline.py), on the 13 scenes' pairs.
 S18=$DEV/s18
 mkdir -p "$S18"
+BEFORE_S22=--no-output-norm  # the refiners of sessions 18-21 had no norm before their last conv
 run "$S18/r3000.pt" "$S18/r3000.log" $RC train-restorer $WHOLE --pairs $PAIRS --out "$S18/r3000.pt" \
   --steps 3000 --ema-decay 0.998 --seed 0
 UNSEEN15=$(pairs_of $(scenes $(seq 13 19) $(seq 23 30)))
 run "$S18/r3000_ref13.pt" "$S18/r3000_ref13.log" $RC train-refiner --restorer "$S18/r3000.pt" --pairs $PAIRS \
-  --out "$S18/r3000_ref13.pt" --steps 3000 --learning-rate 1e-3 --threads 1
+  --out "$S18/r3000_ref13.pt" --steps 3000 --learning-rate 1e-3 --threads 1 $BEFORE_S22
 run "$S18/r3000_ref15unseen.pt" "$S18/r3000_ref15unseen.log" $RC train-refiner --restorer "$S18/r3000.pt" --pairs $UNSEEN15 \
-  --out "$S18/r3000_ref15unseen.pt" --steps 3000 --learning-rate 1e-3 --threads 1
+  --out "$S18/r3000_ref15unseen.pt" --steps 3000 --learning-rate 1e-3 --threads 1 $BEFORE_S22
 # All 28 scenes, 6000 steps: at learning rate 1e-3 the job diverged (loss spike at step 1200, then the
 # identity); at 5e-4, now the command's default, it trained.
 for lr in 1e-3 5e-4; do
   name=r3000_ref28_6000; [ "$lr" = 1e-3 ] || name=r3000_ref28_6000_lr$lr
   run "$S18/$name.pt" "$S18/$name.log" $RC train-refiner --restorer "$S18/r3000.pt" --pairs $PAIRS $UNSEEN15 \
-    --out "$S18/$name.pt" --steps 6000 --learning-rate $lr --threads 1
+    --out "$S18/$name.pt" --steps 6000 --learning-rate $lr --threads 1 $BEFORE_S22
 done
 for name in r3000_ref13 r3000_ref15unseen r3000_ref28_6000 r3000_ref28_6000_lr5e-4; do score "$S18" $name; done
 run "$S18/pixel_baseline_13sc.pt" "$S18/pixel_baseline_13sc.log" python benchmarks/pixel_baseline.py --pairs $PAIRS \
-  --heldout "$DEV/pairs-heldout" --steps 3000 --learning-rate 1e-3 --out "$S18/pixel_baseline_13sc.pt"
+  --heldout "$DEV/pairs-heldout" --steps 3000 --learning-rate 1e-3 --out "$S18/pixel_baseline_13sc.pt" $BEFORE_S22
 
 # Session 19 (docs/restorer.md, "Results (session 19)"): does the pixel refiner gain from seeing
 # the frames around each one (--temporal-neighbours)? A dd2_mask restorer trained 2000 whole-latent
@@ -340,13 +341,13 @@ run "$S19/r2000.pt" "$S19/r2000.log" $RC train-restorer $WHOLE --pairs $PAIRS --
 UNSEEN19=$(pairs_of $(scenes $(seq 13 19) $(seq 23 36)))
 for neighbours in 0 2; do
   run "$S19/r2000_ref_n$neighbours.pt" "$S19/r2000_ref_n$neighbours.log" $RC train-refiner --restorer "$S19/r2000.pt" \
-    --pairs $UNSEEN19 --out "$S19/r2000_ref_n$neighbours.pt" --steps 5000 --temporal-neighbours $neighbours --threads 1
+    --pairs $UNSEEN19 --out "$S19/r2000_ref_n$neighbours.pt" --steps 5000 --temporal-neighbours $neighbours --threads 1 $BEFORE_S22
   score "$S19" r2000_ref_n$neighbours
 done
 # The same two refiners with seed 1, scored on heldout2 only (the session's time ran short).
 for neighbours in 0 2; do
   run "$S19/r2000_ref_n${neighbours}_seed1.pt" "$S19/r2000_ref_n${neighbours}_seed1.log" $RC train-refiner --restorer "$S19/r2000.pt" \
-    --pairs $UNSEEN19 --out "$S19/r2000_ref_n${neighbours}_seed1.pt" --steps 5000 --temporal-neighbours $neighbours --seed 1 --threads 1
+    --pairs $UNSEEN19 --out "$S19/r2000_ref_n${neighbours}_seed1.pt" --steps 5000 --temporal-neighbours $neighbours --seed 1 --threads 1 $BEFORE_S22
   python benchmarks/restorer.py --pairs "$DEV/pairs-heldout2" --stages-per-run 2 --steps 1 \
     --restorer dd2_mask="$S19/r2000_ref_n${neighbours}_seed1.pt" --threads 1 | tee "$S19/heldout2_r2000_ref_n${neighbours}_seed1.txt"
 done
@@ -363,5 +364,21 @@ run "$S21/stage1.pt" "$S21/stage1.log" $RC train-restorer $WHOLE --pairs $(pairs
 run "$S21/stage2.pt" "$S21/stage2.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 19) $(seq 23 37))) \
   --init-restorer "$S21/stage1.pt" --out "$S21/stage2.pt" --steps 1000 --ema-decay 0.997 --seed 0
 run "$S21/stage2_ref.pt" "$S21/stage2_ref.log" $RC train-refiner --restorer "$S21/stage2.pt" \
-  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 38 49))) --out "$S21/stage2_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
+  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 38 49))) --out "$S21/stage2_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1 \
+  $BEFORE_S22
 score "$S21" stage2_ref
+
+# Session 22 (docs/restorer.md, "Results (session 22)"): session 21's refiner job again, now with the
+# channel norm before its last conv; session 21's restorer 3500 steps further on all 47 training
+# scenes made then (corpus-000..019, 023..049), and a refiner on its outputs for 12 of its scenes
+# and 12 it never saw (corpus-050..061).
+S22=$DEV/s22
+mkdir -p "$S22"
+run "$S22/stage2_ref_norm.pt" "$S22/stage2_ref_norm.log" $RC train-refiner --restorer "$S21/stage2.pt" \
+  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 38 49))) --out "$S22/stage2_ref_norm.pt" --steps 5000 --temporal-neighbours 2 --threads 1
+score "$S22" stage2_ref_norm
+run "$S22/stage3.pt" "$S22/stage3.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 19) $(seq 23 49))) \
+  --init-restorer "$S21/stage2.pt" --out "$S22/stage3.pt" --steps 3500 --ema-decay 0.999 --seed 0
+run "$S22/stage3_ref.pt" "$S22/stage3_ref.log" $RC train-refiner --restorer "$S22/stage3.pt" \
+  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 50 61))) --out "$S22/stage3_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
+score "$S22" stage3_ref

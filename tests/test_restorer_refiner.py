@@ -18,8 +18,9 @@ from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import RefinerConfig, RestoreConfig
 from recondreamer.restorer.data import restored_pair_frames, structure_from_uint8
 from recondreamer.restorer.inference import load_restorer, restore_clip
-from recondreamer.restorer.models import autoencoder_payload, model_config_dict
-from recondreamer.restorer.refiner import PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
+from recondreamer.restorer.config import config_to_dict
+from recondreamer.restorer.models import autoencoder_payload, model_config_dict, refiner_from_payload
+from recondreamer.restorer.refiner import PixelChannelNorm, PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
 from recondreamer.restorer.training import RefinerExample, refiner_check_losses, restorer_digest, sample_refiner_batch, train_refiner
 
 # Small tensors: one torch thread each (tests/conftest.py).
@@ -67,6 +68,44 @@ def test_the_refiner_is_per_frame():
     together = refiner(restored, degraded)
     alone = torch.cat([refiner(restored[i : i + 1], degraded[i : i + 1]) for i in range(3)])
     assert torch.allclose(together, alone, atol=1e-6)
+
+
+def test_the_output_norm_works_per_pixel_so_crops_match_whole_frames():
+    features = torch.randn(2, 6, H, W, generator=torch.Generator().manual_seed(0)) * 50.0 - 300.0
+    normed = PixelChannelNorm()(features)
+    assert torch.allclose(normed.mean(dim=1), torch.zeros(2, H, W), atol=1e-5)
+    assert torch.allclose(normed.var(dim=1, unbiased=False), torch.ones(2, H, W), atol=1e-3)
+    assert torch.allclose(PixelChannelNorm()(features[:, :, 3:11, 5:17]), normed[:, :, 3:11, 5:17])
+
+
+def test_features_drifting_before_the_last_conv_do_not_switch_the_correction_off():
+    """Session 21's dead refiner: features before its last SiLU around -1000, output = input, no gradient."""
+    torch.manual_seed(0)
+    restored, degraded, structure = random_frames(1, 0), random_frames(1, 1), torch.rand(1, len(STRUCTURE), H, W)
+    for output_norm in (True, False):
+        refiner = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=output_norm), len(STRUCTURE)))
+        before = refiner(restored, degraded, structure)
+        with torch.no_grad():
+            refiner.full_out.conv2.bias -= 1000.0  # every feature before the norm shifted far into SiLU's flat part
+        after = refiner(restored, degraded, structure)
+        after.square().mean().backward()
+        gradient = refiner.conv_in.weight.grad.abs().max().item()
+        if output_norm:
+            assert torch.allclose(after, before, atol=1e-3) and gradient > 1e-4  # the norm removes a shift shared by all channels
+        else:
+            assert torch.allclose(after - restored, refiner.conv_out.bias.view(1, 3, 1, 1).expand_as(after), atol=1e-6)
+            assert gradient == 0.0
+
+
+def test_refiners_written_before_the_output_norm_load_without_it():
+    torch.manual_seed(0)
+    old = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=False), 0))
+    config = config_to_dict(old.config)
+    del config["output_norm"]  # what checkpoints written before session 22 hold
+    loaded = refiner_from_payload({"config": config, "structure_channels": 0, "state": old.state_dict()})
+    assert not loaded.config.output_norm
+    restored, degraded = random_frames(1, 0), random_frames(1, 1)
+    assert torch.equal(loaded(restored, degraded), old(restored, degraded))
 
 
 def test_neighbour_frames_stand_in_with_the_clip_ends():
@@ -214,7 +253,7 @@ def test_a_temporal_refiner_trains_from_the_command_line_and_is_reloaded_as_trai
     assert main(["train-refiner", "--restorer", str(restorer_path), "--pairs", str(pairs), "--out", str(out), "--steps", "2",
                  "--batch-size", "2", "--crop", "16", "--width", "4", "--temporal-neighbours", "1"]) == 0
     refined = load_restorer(out)
-    assert refined.refiner.config.temporal_neighbours == 1
+    assert refined.refiner.config.temporal_neighbours == 1 and refined.refiner.config.output_norm
     with np.load(pairs) as content:
         degraded, structure = content["degraded"][0], content["structure"]
     diffusion_only = restore_clip(refined, degraded, structure, refine=False)
@@ -317,6 +356,9 @@ def test_train_refiner_command_rejects_bad_options(tmp_path, capsys):
     assert "--ema-decay must be in [0, 1)" in capsys.readouterr().err
     assert main([*base, "--temporal-neighbours", "-1"]) == 1
     assert "--temporal-neighbours must be >= 0" in capsys.readouterr().err
+    assert main([*base, "--steps", "1", "--batch-size", "1", "--crop", "16", "--width", "4", "--no-output-norm"]) == 0
+    assert not load_restorer(tmp_path / "o.pt").refiner.config.output_norm
+    (tmp_path / "o.pt").unlink()
     assert main(["train-refiner", "--restorer", str(pairs), "--pairs", str(pairs), "--out", str(tmp_path / "o.pt")]) == 1
     assert not (tmp_path / "o.pt").exists()
 

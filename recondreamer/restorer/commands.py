@@ -104,6 +104,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--ema-decay", type=float, default=None, help="EMA of the weights saved instead of the last ones (default 0: off)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     p.add_argument("--no-structure", action="store_true", help="do not show the refiner the structure maps (dd2 archs)")
+    p.add_argument("--no-output-norm", action="store_true",
+                   help="build the refiner without the channel norm before its last conv, as refiners before session 22 were")
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_train_refiner)
@@ -334,7 +336,8 @@ def run_train_refiner(args: argparse.Namespace) -> int:
         "learning_rate": args.learning_rate, "ema_decay": args.ema_decay, "seed": args.seed,
         "temporal_neighbours": args.temporal_neighbours,
     }
-    config = dataclasses.replace(RefinerConfig(), use_structure=not args.no_structure, **{k: v for k, v in overrides.items() if v is not None})
+    config = dataclasses.replace(
+        RefinerConfig(), use_structure=not args.no_structure, output_norm=not args.no_output_norm, **{k: v for k, v in overrides.items() if v is not None})
     for name in ("steps", "batch_size", "crop", "width"):
         if getattr(config, name) < 1:
             raise RecondreamerError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")

@@ -155,6 +155,7 @@ class RefinerConfig:
     bottleneck_blocks: int = 3  # residual blocks at quarter resolution
     use_structure: bool = True  # also see the structure maps (dd2 archs' conditions)
     temporal_neighbours: int = 0  # also see the restored and degraded frames this many frames before and after (0: per frame)
+    output_norm: bool = True  # per-pixel channel norm before the last activation (refiner.PixelChannelNorm)
     steps: int = 3000
     batch_size: int = 8  # crops per step
     crop: int = 64  # crop side in pixels

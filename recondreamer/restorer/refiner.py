@@ -28,6 +28,20 @@ from recondreamer.restorer.config import RefinerConfig
 from recondreamer.restorer.device import module_device
 
 
+class PixelChannelNorm(nn.Module):
+    """Layer norm over the channels of each pixel, without learned scale or shift.
+
+    Unlike group norm it uses no spatial statistics, so a refiner trained on crops computes the
+    same on whole frames. Before the refiner's last SiLU it keeps the features at unit scale:
+    without it (``RefinerConfig.output_norm`` False) a refiner could drift into SiLU's flat
+    part, where its correction and every gradient vanish (session 21's dead refiner: features
+    around -1000 there). No learned shift, so nothing can push them back into that part.
+    """
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (N,C,H,W) -> (N,C,H,W)
+        return F.layer_norm(x.permute(0, 2, 3, 1), (x.shape[1],)).permute(0, 3, 1, 2)
+
+
 class PixelRefiner(nn.Module):
     """Two-level UNet in pixel space: (restored, degraded, neighbours, structure) -> refined frame.
 
@@ -52,6 +66,7 @@ class PixelRefiner(nn.Module):
         self.half_out = PlainResBlock(2 * w)
         self.up_full = nn.Conv2d(2 * w, w, 3, padding=1)
         self.full_out = PlainResBlock(w)
+        self.norm_out = PixelChannelNorm() if config.output_norm else nn.Identity()
         self.conv_out = nn.Conv2d(w, 3, 3, padding=1)
         nn.init.zeros_(self.conv_out.weight)  # a fresh refiner returns the restorer's output
         nn.init.zeros_(self.conv_out.bias)
@@ -74,7 +89,7 @@ class PixelRefiner(nn.Module):
         quarter = self.bottleneck(self.down_quarter(F.silu(half)))
         half = self.half_out(half + self.up_half(F.interpolate(quarter, size=half.shape[-2:], mode="nearest")))
         full = self.full_out(full + self.up_full(F.interpolate(half, size=full.shape[-2:], mode="nearest")))
-        return restored + self.conv_out(F.silu(full))
+        return restored + self.conv_out(F.silu(self.norm_out(full)))
 
     def _check_inputs(self, restored, degraded, structure, neighbours) -> None:
         if restored.dim() != 4 or restored.shape[1] != 3:
