@@ -336,8 +336,8 @@ def run_train_refiner(args: argparse.Namespace) -> int:
         "learning_rate": args.learning_rate, "ema_decay": args.ema_decay, "seed": args.seed,
         "temporal_neighbours": args.temporal_neighbours,
     }
-    config = dataclasses.replace(
-        RefinerConfig(), use_structure=not args.no_structure, output_norm=not args.no_output_norm, **{k: v for k, v in overrides.items() if v is not None})
+    overrides = {k: v for k, v in overrides.items() if v is not None}
+    config = dataclasses.replace(RefinerConfig(), use_structure=not args.no_structure, output_norm=not args.no_output_norm, **overrides)
     for name in ("steps", "batch_size", "crop", "width"):
         if getattr(config, name) < 1:
             raise RecondreamerError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")

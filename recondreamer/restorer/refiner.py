@@ -35,7 +35,7 @@ class PixelChannelNorm(nn.Module):
     same on whole frames. Before the refiner's last SiLU it keeps the features at unit scale:
     without it (``RefinerConfig.output_norm`` False) a refiner could drift into SiLU's flat
     part, where its correction and every gradient vanish (session 21's dead refiner: features
-    around -1000 there). No learned shift, so nothing can push them back into that part.
+    around -1000 there). It has no learned scale or shift, which training could drive there instead.
     """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (N,C,H,W) -> (N,C,H,W)
