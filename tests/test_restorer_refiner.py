@@ -15,10 +15,9 @@ from recondreamer.cli import main
 from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.restorer.autoencoder import frames_to_tensor, tensor_to_frames
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
-from recondreamer.restorer.config import RefinerConfig, RestoreConfig
+from recondreamer.restorer.config import RefinerConfig, RestoreConfig, config_to_dict
 from recondreamer.restorer.data import restored_pair_frames, structure_from_uint8
 from recondreamer.restorer.inference import load_restorer, restore_clip
-from recondreamer.restorer.config import config_to_dict
 from recondreamer.restorer.models import autoencoder_payload, model_config_dict, refiner_from_payload
 from recondreamer.restorer.refiner import PixelChannelNorm, PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
 from recondreamer.restorer.training import RefinerExample, refiner_check_losses, restorer_digest, sample_refiner_batch, train_refiner

@@ -650,12 +650,13 @@ def sample_refiner_batch(examples: list[RefinerExample], rng: np.random.Generato
 def refiner_loss(refiner: PixelRefiner, examples: list[RefinerExample], rng: np.random.Generator, config: RefinerConfig) -> torch.Tensor:
     """Pixel MSE ([-1,1] units) of the refined crops of one random batch against ground truth."""
     batch = _batch_on(sample_refiner_batch(examples, rng, config), module_device(refiner))
-    return torch.mean((refine_batch(refiner, batch) - batch["target"]) ** 2)
+    return refined_batch_mse(refiner, batch)
 
 
-def refine_batch(refiner: PixelRefiner, batch: dict) -> torch.Tensor:  # (B,3,c,c) in [-1,1]
-    """The refiner's output for a ``sample_refiner_batch`` batch."""
-    return refiner(batch["restored"], batch["degraded"], batch["structure"], batch["neighbours"])
+def refined_batch_mse(refiner: PixelRefiner, batch: dict) -> torch.Tensor:  # scalar
+    """Pixel MSE of the refiner's output for a ``sample_refiner_batch`` batch against its target."""
+    refined = refiner(batch["restored"], batch["degraded"], batch["structure"], batch["neighbours"])
+    return torch.mean((refined - batch["target"]) ** 2)
 
 
 REFINER_CHECK_BATCHES = 16  # fixed batches on which a finished refiner is compared with the identity
@@ -675,7 +676,7 @@ def refiner_check_losses(refiner: PixelRefiner, examples: list[RefinerExample], 
     refined, identity = [], []
     for _ in range(REFINER_CHECK_BATCHES):
         batch = _batch_on(sample_refiner_batch(examples, rng, config), device)
-        refined.append(torch.mean((refine_batch(refiner, batch) - batch["target"]) ** 2).item())
+        refined.append(refined_batch_mse(refiner, batch).item())
         identity.append(torch.mean((batch["restored"] - batch["target"]) ** 2).item())
     return float(np.mean(refined)), float(np.mean(identity))
 
