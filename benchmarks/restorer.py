@@ -17,6 +17,7 @@ trajectory), restore the clip and print:
 - the fine-tuning job's steps, training-timestep power, CPU ms per step and CPU minutes, as
   recorded in the checkpoint (steps and minutes summed over the jobs of a restorer trained further
   from another with ``--init-restorer``; ms per step of the last job);
+- the noise draws averaged per restored window (``--samples``, default each checkpoint's);
 - the restorer's target space: ``residual`` (it diffuses the correction to its input) or ``clean``;
 - for a restorer with a pixel refiner (``train-refiner``): every setting with and without the
   refiner (column ``refine``), and the refiner job's CPU minutes (training, and restoring its
@@ -99,13 +100,14 @@ def evaluate_restorer(
     )
     refine_options = [True, False] if restorer.refiner is not None else [False]
     rows = []
-    for (steps, strength, residual), refine in itertools.product(settings, refine_options):
+    for (steps, strength, residual, samples), refine in itertools.product(settings, refine_options):
         records = []
         seconds_per_40 = cpu_seconds_per_40 = float("nan")
         for kind, degraded, gt, structure in clips:
             start, start_cpu = time.perf_counter(), time.process_time()
             restored = restore_clip(
-                restorer, degraded, structure, num_steps=steps, strength=strength, residual_decoding=residual, refine=refine
+                restorer, degraded, structure, num_steps=steps, strength=strength, residual_decoding=residual, samples=samples,
+                refine=refine,
             )
             seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - start_cpu
             if not records:
@@ -121,6 +123,7 @@ def evaluate_restorer(
             "steps": steps or restorer.restore_config.sample_steps,
             "strength": strength or restorer.restore_config.strength,
             "residual": restorer.restore_config.residual_decoding if residual is None else residual,
+            "samples": samples or restorer.restore_config.samples,
             "refine": "on" if refine else ("off" if restorer.refiner is not None else "-"),
             "refiner_minutes": refiner_minutes if restorer.refiner is not None else float("nan"),
             "clips": len(records),
@@ -151,6 +154,9 @@ def main() -> None:
         "--residual-decoding", choices=["on", "off"], nargs="+", default=[None],
         help="decode only the change and add it to the input (default: each checkpoint's)",
     )
+    parser.add_argument(
+        "--samples", type=int, nargs="+", default=[None], help="noise draws averaged per window to try (default: each checkpoint's)"
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch threads per restorer (default 1)")
     parser.add_argument("--jobs", type=int, default=1, help="restorers evaluated in parallel processes (default 1)")
     parser.add_argument(
@@ -167,7 +173,7 @@ def main() -> None:
 
     files = find_pairs_files(args.pairs)
     residual = [None if value is None else value == "on" for value in args.residual_decoding]
-    settings = list(itertools.product(args.steps, args.strength, residual))
+    settings = list(itertools.product(args.steps, args.strength, residual, args.samples))
     jobs = [(item, files, settings, args.stages_per_run, args.threads, args.training_scenes) for item in args.restorer]
     if args.jobs > 1:
         with multiprocessing.get_context("spawn").Pool(args.jobs) as pool:
@@ -175,7 +181,7 @@ def main() -> None:
     else:
         rows = [row for job in jobs for row in evaluate_restorer(*job)]
     header = (
-        f"{'backbone':10s} {'space':>8s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'refine':>6s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
+        f"{'backbone':10s} {'space':>8s} {'steps':>5s} {'strngth':>7s} {'resid':>5s} {'samples':>7s} {'refine':>6s} {'clips':>5s} {'PSNR deg':>8s} {'PSNR rest':>9s} {'gain dB':>7s} "
         f"{'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick rest':>10s} {'s / 40 fr':>9s} {'cpu s / 40':>10s} "
         f"{'train steps':>11s} {'t power':>7s} {'train CPU ms/step':>17s} {'train CPU min':>13s} {'refiner CPU min':>15s}"
     )
@@ -183,9 +189,9 @@ def main() -> None:
     print(f"{scored}; threads={args.threads}; wall-clock timings depend on other jobs sharing the CPU, CPU seconds much less")
     print(header)
     print("-" * len(header))
-    for row in sorted(rows, key=lambda r: (r["residual"], r["steps"], -r["strength"])):
+    for row in sorted(rows, key=lambda r: (r["residual"], r["steps"], -r["strength"], r["samples"])):
         print(
-            f"{row['arch']:10s} {row['space']:>8s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['refine']:>6s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
+            f"{row['arch']:10s} {row['space']:>8s} {row['steps']:5d} {row['strength']:7.2f} {'on' if row['residual'] else 'off':>5s} {row['samples']:7d} {row['refine']:>6s} {row['clips']:5d} {row['psnr_degraded']:8.2f} "
             f"{row['psnr_restored']:9.2f} {row['gain']:7.2f} {row['gain_orig']:6.2f} {row['gain_novel']:6.2f} "
             f"{row['flicker_degraded']:9.2f} {row['flicker_restored']:10.2f} {row['seconds_per_40']:9.1f} "
             f"{row['cpu_seconds_per_40']:10.1f} {row['train_steps']:11d} {row['timestep_power']:7g} {row['train_ms']:17.0f} {row['train_minutes']:13.1f} {row['refiner_minutes']:15.1f}"

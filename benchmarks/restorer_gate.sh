@@ -12,7 +12,7 @@
 # machine is shared); a finished step is skipped when its output exists, so the script can be
 # re-run after an interruption.
 #
-# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -22 runs under results/restorer-dev/s8/ .. s22/)
+# Usage: benchmarks/restorer_gate.sh   (its last parts add the session-8 to -23 runs under results/restorer-dev/s8/ .. s23/)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DEV=results/restorer-dev
@@ -27,7 +27,9 @@ OUT=$DEV/s7             # restorers, logs and the gate table
 RESTORER_STEPS=3000     # every backbone (25 CPU min for dd2_mask); dd2_mask also 8000 below
 # Timestep power 50: training steps drawn with density ~ t^49, 95% of them above t = 940, i.e. the
 # restorer learns the one step it samples (t = 999); power 3 at 3000 steps gained 0.22 dB less.
-RESTORER_OPTIONS="--target-space residual --timestep-power 50 --residual-decoding on --sample-steps 1 --strength 1.0 --threads 1"
+# One noise draw per restore, as every restorer here was scored (train-restorer stores 4 averaged
+# draws by default since session 23; the session-23 part scores both).
+RESTORER_OPTIONS="--target-space residual --timestep-power 50 --residual-decoding on --sample-steps 1 --samples 1 --strength 1.0 --threads 1"
 mkdir -p results/corpus "$DEV/corpus-train" "$DEV/recon" "$DEV/pairs-train" "$DEV/pairs-heldout" "$DEV/logs" "$WM" "$OUT"
 
 run() {  # run OUTPUT LOG COMMAND...: skip when OUTPUT exists
@@ -382,3 +384,20 @@ run "$S22/stage3.pt" "$S22/stage3.log" $RC train-restorer $WHOLE --pairs $(pairs
 run "$S22/stage3_ref.pt" "$S22/stage3_ref.log" $RC train-refiner --restorer "$S22/stage3.pt" \
   --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 50 61))) --out "$S22/stage3_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
 score "$S22" stage3_ref
+
+# Session 23 (docs/restorer.md, "Results (session 23)"): session 22's restorer 3500 steps further on
+# all 67 training scenes made by then (corpus-000..019, 023..069), scored with 1 and 4 noise draws
+# averaged; a refiner on its 4-draw outputs for 12 of its scenes and 12 it never saw
+# (corpus-071..082; the session-13 part above makes every scene up to corpus-200). (The session's job ran its first 400 steps as a 5000-step job, then resumed
+# as a 3500-step one: the same batches, a slightly different learning-rate curve before step 400.)
+S23=$DEV/s23
+mkdir -p "$S23"
+run "$S23/stage4.pt" "$S23/stage4.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 19) $(seq 23 69))) \
+  --init-restorer "$S22/stage3.pt" --out "$S23/stage4.pt" --steps 3500 --ema-decay 0.999 --seed 0
+for heldout in pairs-heldout pairs-heldout2; do
+  python benchmarks/restorer.py --pairs "$DEV/$heldout" --stages-per-run 2 --steps 1 --samples 1 4 \
+    --restorer dd2_mask="$S23/stage4.pt" --threads 1 | tee "$S23/${heldout}_stage4.txt"
+done
+run "$S23/stage4_ref.pt" "$S23/stage4_ref.log" $RC train-refiner --restorer "$S23/stage4.pt" --samples 4 \
+  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 71 82))) --out "$S23/stage4_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
+score "$S23" stage4_ref

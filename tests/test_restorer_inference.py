@@ -10,8 +10,10 @@ from test_restorer_models import STRUCTURE, H, W, tiny_model
 from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import RestoreConfig
+from recondreamer.restorer import inference
 from recondreamer.restorer.inference import (
     blend_windows,
+    clip_noise,
     generate_clip,
     load_restorer,
     load_world_model,
@@ -80,6 +82,31 @@ def _sample_clip_from_noise(restorer, latents, structure, noise):
         return restorer.unet(x, t, latents[0][None], structure=structure[None], degraded=latents[None])
 
     return ddim_sample(model_fn, restorer.schedule, noise[None], 2)[0]
+
+
+def test_averaged_samples_are_the_mean_of_single_samples_from_the_same_noise():
+    restorer = tiny_model("dd2_mask", kind="restorer")
+    rng = np.random.default_rng(2)
+    frames = rng.integers(0, 256, size=(4, H, W, 3), dtype=np.uint8)
+    structure = rng.random((4, len(STRUCTURE), H, W)).astype(np.float32)
+    from recondreamer.restorer.autoencoder import encode_frames
+    from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
+
+    latents = encode_frames(restorer.autoencoder, frames)
+    s = structure_from_uint8(structure_to_uint8(structure))
+    noise = clip_noise(latents, 3, seed=5)
+    # The first draw is a single-sample restoration's noise.
+    assert torch.equal(noise[0], torch.randn(latents.shape, generator=torch.Generator().manual_seed(5)))
+    assert torch.equal(clip_noise(latents, 1, seed=5)[0], noise[0])
+    batched = inference._sample_clip(restorer, latents, s, latents, 2, 4, 0, 1.0, noise)
+    singles = [_sample_clip_from_noise(restorer, latents, s, noise[k]) for k in range(3)]
+    assert torch.allclose(batched, torch.stack(singles).mean(dim=0), atol=1e-5)
+    assert not torch.allclose(singles[0], singles[1], atol=1e-3)  # the draws differ, so the mean is not one of them
+    one = restore_clip(restorer, frames, structure, window=4, num_steps=2, seed=5)
+    assert np.array_equal(one, restore_clip(restorer, frames, structure, window=4, num_steps=2, seed=5, samples=1))
+    assert not np.array_equal(one, restore_clip(restorer, frames, structure, window=4, num_steps=2, seed=5, samples=3))
+    with pytest.raises(RecondreamerError, match="samples must be >= 1"):
+        restore_clip(restorer, frames, structure, samples=0)
 
 
 def test_generation_follows_the_structure_conditions():

@@ -48,26 +48,28 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
     )
     assert main(["train-restorer", "--arch", "dd2_mask", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
                  "--out", str(tmp_path / "r.pt"), "--residual-decoding", "on", "--sample-steps", "3", "--strength", "0.5",
-                 "--pixel-loss-weight", "2", *train]) == 0
+                 "--samples", "2", "--pixel-loss-weight", "2", *train]) == 0
     restorer = load_checkpoint(tmp_path / "r.pt", "restorer")
     assert restorer["config"]["train"]["pixel_loss_weight"] == 2.0
     assert restorer["config"]["masks"]["probability"] == 0.5 and restorer["training_scenes"] == [scene.scene_id]
-    assert restorer["config"]["restore"] | {"residual_decoding": True, "sample_steps": 3, "strength": 0.5} == restorer["config"]["restore"]
+    assert restorer["config"]["restore"] | {"residual_decoding": True, "sample_steps": 3, "strength": 0.5, "samples": 2} == restorer["config"]["restore"]
     assert restorer["config"]["diffusion"]["prediction"] == "v"
     # Residual target space by default, its scale measured on the pairs (blur leaves a non-zero residual).
     assert restorer["config"]["diffusion"]["target_space"] == "residual" and restorer["config"]["diffusion"]["residual_scale"] > 0.0
 
-    # Without options a restorer gets the measured recipe: residual space, timestep power 50, 1 step, residual decoding.
+    # Without options a restorer gets the measured recipe: residual space, timestep power 50, 1 step of 4 averaged
+    # samples, residual decoding.
     assert main(["train-restorer", "--arch", "dd2", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
                  "--out", str(tmp_path / "r_default.pt"), *train]) == 0
     default = load_checkpoint(tmp_path / "r_default.pt", "restorer")["config"]
     assert default["train"]["timestep_power"] == 50.0 and default["diffusion"]["target_space"] == "residual"
     assert default["restore"]["sample_steps"] == 1 and default["restore"]["residual_decoding"] is True
+    assert default["restore"]["samples"] == 4
     assert default["train"]["pixel_loss_weight"] == 0.0
 
     np.save(tmp_path / "renders.npy", _blur(gt))
     assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--renders", str(tmp_path / "renders.npy"),
-                 "--trajectory", "shift@3", "--out", str(tmp_path / "restored"), "--steps", "2", *common]) == 0
+                 "--trajectory", "shift@3", "--out", str(tmp_path / "restored"), "--steps", "2", "--samples", "1", *common]) == 0
     assert len(list((tmp_path / "restored").glob("*.png"))) == scene.num_frames
     assert main(["dd4d-generate", "--world-model", str(tmp_path / "wm.pt"), "--scene", str(scene.path), "--trajectory", "lane_change",
                  "--out", str(tmp_path / "dd4d"), "--steps", "2", *common]) == 0

@@ -245,6 +245,22 @@ def test_train_refiner_writes_the_restorer_with_its_refiner_and_restore_uses_it(
         train_refiner(tmp_path / "refined.pt", [pairs], TINY, tmp_path / "again.pt")
 
 
+def test_a_refiner_learns_from_and_stores_the_restore_samples_it_was_given(tmp_path):
+    restorer_path = tiny_restorer_file(tmp_path / "r.pt")
+    pairs = tiny_pairs_file(tmp_path / "corpus-002__street.npz", "corpus-002")
+    train_refiner(restorer_path, [pairs], TINY, tmp_path / "refined.pt", samples=3)
+    plain, refined = load_restorer(restorer_path), load_restorer(tmp_path / "refined.pt")
+    assert plain.restore_config.samples == 1 and refined.restore_config.samples == 3
+    # Its training outputs were the 3-sample ones, cached under a name of their own.
+    averaged = dataclasses.replace(plain, restore_config=dataclasses.replace(plain.restore_config, samples=3))
+    assert restorer_digest(averaged) != restorer_digest(plain)
+    cached = torch.load(tmp_path / f"corpus-002__street.restored-{restorer_digest(averaged)}.pt", weights_only=True).numpy()
+    with np.load(pairs) as content:
+        degraded, structure = content["degraded"][0], content["structure"]
+    assert np.array_equal(cached[0], restore_clip(plain, degraded, structure, samples=3))
+    assert np.array_equal(restore_clip(refined, degraded, structure, refine=False), cached[0])
+
+
 def test_a_temporal_refiner_trains_from_the_command_line_and_is_reloaded_as_trained(tmp_path):
     restorer_path = tiny_restorer_file(tmp_path / "r.pt")
     pairs = tiny_pairs_file(tmp_path / "corpus-002__street.npz", "corpus-002")
@@ -355,6 +371,8 @@ def test_train_refiner_command_rejects_bad_options(tmp_path, capsys):
     assert "--ema-decay must be in [0, 1)" in capsys.readouterr().err
     assert main([*base, "--temporal-neighbours", "-1"]) == 1
     assert "--temporal-neighbours must be >= 0" in capsys.readouterr().err
+    assert main([*base, "--samples", "0"]) == 1
+    assert "--samples must be >= 1" in capsys.readouterr().err
     assert main([*base, "--steps", "1", "--batch-size", "1", "--crop", "16", "--width", "4", "--no-output-norm"]) == 0
     assert not load_restorer(tmp_path / "o.pt").refiner.config.output_norm
     (tmp_path / "o.pt").unlink()

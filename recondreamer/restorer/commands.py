@@ -60,6 +60,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sample-steps", type=int, default=None, help="default DDIM steps stored for restoring (default 1)")
     p.add_argument("--strength", type=float, default=None, help="default restore strength stored in the checkpoint (default from RestoreConfig)")
     p.add_argument(
+        "--samples", type=int, default=None,
+        help="default noise draws averaged per restored window, stored in the checkpoint (default 4)",
+    )
+    p.add_argument(
         "--residual-decoding", choices=["on", "off"], default=None,
         help="store whether restoring decodes only the change and adds it to the input (default on)",
     )
@@ -94,6 +98,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--restorer", required=True, help="restorer checkpoint (train-restorer output) whose outputs the refiner corrects")
     p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files (e.g. the restorer's own)")
     p.add_argument("--out", required=True, help="checkpoint to write: the restorer with its refiner")
+    p.add_argument(
+        "--samples", type=int, default=None,
+        help="noise draws the restorer averages per window, for the outputs the refiner learns from and in the written "
+        "checkpoint (default: the restorer's own)",
+    )
     p.add_argument("--steps", type=int, default=None, help="training steps (default from RefinerConfig: 3000)")
     p.add_argument("--batch-size", type=int, default=None, help="pixel crops per step (default 8)")
     p.add_argument("--crop", type=int, default=None, help="side of the square training crops in pixels (default 64)")
@@ -118,6 +127,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="output folder of restored frames {t:03d}.png")
     _add_sampling_options(p)
     p.add_argument("--strength", type=float, default=None, help="1 = start from noise; < 1 starts from the noised render (default from the checkpoint)")
+    p.add_argument("--samples", type=int, default=None, help="noise draws averaged per window (default from the checkpoint)")
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_restore)
@@ -288,6 +298,7 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     from recondreamer.restorer.config import (
         RESTORER_RESIDUAL_DECODING,
         RESTORER_SAMPLE_STEPS,
+        RESTORER_SAMPLES,
         RESTORER_TIMESTEP_POWER,
         MaskConfig,
         RestoreConfig,
@@ -310,13 +321,15 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     files = find_pairs_files(args.pairs)
     keep_frames = masks is not None or train.pixel_loss_weight > 0.0
     sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=keep_frames)
-    restore = RestoreConfig(sample_steps=RESTORER_SAMPLE_STEPS, residual_decoding=RESTORER_RESIDUAL_DECODING)
-    overrides = {"sample_steps": args.sample_steps, "strength": args.strength}
+    restore = RestoreConfig(sample_steps=RESTORER_SAMPLE_STEPS, residual_decoding=RESTORER_RESIDUAL_DECODING, samples=RESTORER_SAMPLES)
+    overrides = {"sample_steps": args.sample_steps, "strength": args.strength, "samples": args.samples}
     if args.residual_decoding is not None:
         overrides["residual_decoding"] = args.residual_decoding == "on"
     restore = dataclasses.replace(restore, **{k: v for k, v in overrides.items() if v is not None})
-    if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1:
-        raise RecondreamerError(f"--strength must be in (0, 1] and --sample-steps >= 1, got {restore.strength} and {restore.sample_steps}")
+    if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1 or restore.samples < 1:
+        raise RecondreamerError(
+            f"--strength must be in (0, 1], --sample-steps and --samples >= 1, got {restore.strength}, {restore.sample_steps} and {restore.samples}"
+        )
     stats = train_restorer(
         world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device, args.init_restorer,
         args.blocks_per_level,
@@ -345,8 +358,10 @@ def run_train_refiner(args: argparse.Namespace) -> int:
         raise RecondreamerError(f"--temporal-neighbours must be >= 0, got {config.temporal_neighbours}")
     if not 0.0 <= config.ema_decay < 1.0:
         raise RecondreamerError(f"--ema-decay must be in [0, 1), got {config.ema_decay}")
+    if args.samples is not None and args.samples < 1:
+        raise RecondreamerError(f"--samples must be >= 1, got {args.samples}")
     _set_threads(args)
-    stats = train_refiner(args.restorer, find_pairs_files(args.pairs), config, args.out, _device(args))
+    stats = train_refiner(args.restorer, find_pairs_files(args.pairs), config, args.out, _device(args), args.samples)
     LOG.info("wrote %s: final loss %.5f, %.0f CPU ms/step", args.out, stats["final_loss"], stats["cpu_ms_per_step"])
     return 0
 
@@ -382,7 +397,9 @@ def run_restore(args: argparse.Namespace) -> int:
     if renders.shape != reference.shape:
         raise RecondreamerError(f"{args.renders}: renders {renders.shape} do not match the scene's frames {reference.shape} (T,H,W,3)")
     start = time.perf_counter()
-    restored = restore_clip(restorer, renders, structure, num_steps=args.steps, overlap=args.overlap, strength=args.strength, seed=args.seed)
+    restored = restore_clip(
+        restorer, renders, structure, num_steps=args.steps, overlap=args.overlap, strength=args.strength, seed=args.seed, samples=args.samples
+    )
     seconds = time.perf_counter() - start
     LOG.info("restored %d frames with %s on %s in %.1f s", len(restored), restorer.arch, restorer.device, seconds)
     info = {"restorer": str(args.restorer), "arch": restorer.arch, "scene_id": scene.scene_id, "trajectory": args.trajectory, "seconds": seconds}

@@ -6,6 +6,12 @@ clip's per-frame noise (drawn once from the seed, so frames shared by two window
 same noise), and the windows' clean latents are cross-faded linearly over each overlap before
 decoding. With ``overlap = 0`` every frame comes from exactly one window, identical to sampling
 that window alone.
+
+A restorer can average several samples (``samples``, default from its restore config): each window
+is sampled from that many noise draws in one batch and their clean latents are averaged. The mean
+of samples estimates the mean of the restorer's output distribution, the output that minimises the
+expected squared error; a single sample carries that distribution's spread as well. The first
+noise draw is the one a single-sample restoration uses.
 """
 
 from __future__ import annotations
@@ -108,25 +114,25 @@ def _sample_clip(
     window: int,
     overlap: int,
     strength: float,
-    seed: int,
-) -> torch.Tensor:  # (T,c,h,w)
-    num_frames = reference_latents.shape[0]
-    generator = torch.Generator().manual_seed(seed)
-    # Conditions and noise (drawn on the CPU generator: the same on any device) go to the model's device.
+    noise: torch.Tensor,  # (K,T,c,h,w) one clip of noise per sample (clip_noise)
+) -> torch.Tensor:  # (T,c,h,w) the mean of the K samples
+    num_frames, samples = reference_latents.shape[0], noise.shape[0]
+    # Conditions and noise go to the model's device.
     device = model.device
-    noise = torch.randn(reference_latents.shape, generator=generator).to(device)
+    noise = noise.to(device)
     reference_latents = reference_latents.to(device)
     structure = None if structure is None else structure.to(device)
     degraded_latents = None if degraded_latents is None else degraded_latents.to(device)
     unet = model.unet.eval()
 
     def sample_window(start: int, end: int) -> torch.Tensor:
-        shape = (1, end - start, *noise.shape[1:])
-        reference = reference_latents[start][None]
-        degraded = None if degraded_latents is None else degraded_latents[start:end][None]
+        # The window's conditions, repeated for the batch of samples (structure features once, then repeated).
+        length = end - start
+        reference = reference_latents[start][None].expand(samples, *reference_latents.shape[1:])
+        degraded = None if degraded_latents is None else degraded_latents[start:end][None].expand(samples, length, *degraded_latents.shape[1:])
         features = None
         if structure is not None:
-            features = unet.encode_structure(structure[start:end][None], shape)
+            features = unet.encode_structure(structure[start:end][None], (1, length, *noise.shape[2:])).repeat(samples, 1, 1, 1)
 
         def model_fn(x: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
             return unet(x, timesteps, reference, degraded=degraded, structure_features=features)
@@ -135,12 +141,20 @@ def _sample_clip(
         # (strength < 1) is then the zero correction, i.e. the degraded clip itself.
         start_latent = None if degraded is None else model.schedule.to_diffusion_space(degraded, degraded)
         sample = ddim_sample(
-            model_fn, model.schedule, noise[start:end][None], num_steps, eta=0.0,
+            model_fn, model.schedule, noise[:, start:end], num_steps, eta=0.0,
             start_latent=start_latent, strength=strength,
         )
-        return model.schedule.from_diffusion_space(sample, degraded)[0]
+        return model.schedule.from_diffusion_space(sample, degraded).mean(dim=0)
 
     return blend_windows(num_frames, window, overlap, sample_window)
+
+
+def clip_noise(latents: torch.Tensor, samples: int, seed: int) -> torch.Tensor:  # (T,c,h,w) -> (K,T,c,h,w)
+    """Noise for ``samples`` samples of a clip, drawn on a CPU generator (the same on any device);
+    the first sample's is what a single-sample draw with that seed gives."""
+    if samples < 1:
+        raise RecondreamerError(f"samples must be >= 1, got {samples}")
+    return torch.randn((samples, *latents.shape), generator=torch.Generator().manual_seed(seed))
 
 
 def _encode_conditions(
@@ -166,13 +180,15 @@ def restore_clip(
     strength: float | None = None,
     seed: int | None = None,
     residual_decoding: bool | None = None,
+    samples: int | None = None,
     refine: bool = True,
 ) -> np.ndarray:  # (T,H,W,3) uint8
     """Restore a rendered clip with DriveRestorer (defaults from the checkpoint's restore config).
 
     Each window is conditioned on its degraded frames (its first one also as the reference
     frame, as in training) and, for dd2 archs, on the structure maps. With residual decoding
-    the output is the input plus the decoded change ``D(z_restored) - D(E(input))``. A restorer
+    the output is the input plus the decoded change ``D(z_restored) - D(E(input))``, where
+    ``z_restored`` is the mean of ``samples`` samples (module docstring). A restorer
     with a pixel refiner (``train-refiner``) then refines that output frame by frame, unless
     ``refine`` is False (the diffusion restorer's output alone, e.g. to measure the refiner).
     """
@@ -183,7 +199,8 @@ def restore_clip(
     latents = _sample_clip(
         restorer, degraded_latents, structure_tensor, degraded_latents,
         num_steps or config.sample_steps, window or config.window, config.overlap if overlap is None else overlap,
-        config.strength if strength is None else strength, config.seed if seed is None else seed,
+        config.strength if strength is None else strength,
+        clip_noise(degraded_latents, config.samples if samples is None else samples, config.seed if seed is None else seed),
     )
     if not (config.residual_decoding if residual_decoding is None else residual_decoding):
         restored = decode_latents(restorer.autoencoder, latents)
@@ -223,6 +240,6 @@ def generate_clip(
     latents = _sample_clip(
         world_model, reference_latents, structure_tensor, None,
         num_steps or world_model.diffusion_config.sample_steps, window or world_model.train_config.window,
-        config.overlap if overlap is None else overlap, 1.0, seed,
+        config.overlap if overlap is None else overlap, 1.0, clip_noise(reference_latents, 1, seed),
     )
     return decode_latents(world_model.autoencoder, latents)

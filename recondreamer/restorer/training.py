@@ -579,7 +579,10 @@ def restorer_digest(restorer: GenerativeModel) -> str:
     """A short hash of what a restorer outputs: its UNet weights, autoencoder and restore defaults
     (names the caches of its restored pairs, ``data.restored_pair_frames``)."""
     digest = hashlib.sha1(autoencoder_digest(restorer.autoencoder).encode())
-    digest.update(json.dumps(config_to_dict(restorer.restore_config), sort_keys=True).encode())
+    restore = config_to_dict(restorer.restore_config)
+    if restore["samples"] == 1:  # as before the field existed, so caches written then stay valid
+        del restore["samples"]
+    digest.update(json.dumps(restore, sort_keys=True).encode())
     hash_weights(digest, restorer.unet)
     return digest.hexdigest()[:12]
 
@@ -687,13 +690,18 @@ def train_refiner(
     config: RefinerConfig,
     out: str | os.PathLike,
     device: torch.device | str = "cpu",
+    samples: int | None = None,
 ) -> dict:
     """Train a pixel refiner on a restorer's outputs for the given pairs and write the restorer
     with it (``out``: the restorer checkpoint plus a ``refiner`` entry; its training scenes are
-    those of both). Resumable like every job here."""
+    those of both). ``samples`` (default: the restorer's) sets the noise draws the restorer
+    averages, for the outputs the refiner learns from and in ``out``'s restore config, so the
+    refiner is used on outputs like those it learned from. Resumable like every job here."""
     payload = load_checkpoint(restorer_path, "restorer")
     if payload.get("refiner") is not None:
         raise CheckpointError(f"{restorer_path}: this restorer already has a pixel refiner; train one on the restorer it was made from")
+    if samples is not None:
+        payload["config"] = {**payload["config"], "restore": {**payload["config"].get("restore", {}), "samples": samples}}
     restorer = model_from_payload(payload, device)
     with_structure = config.use_structure and restorer.unet_config.uses_structure
     digest = restorer_digest(restorer)  # names the cached outputs and the resume file's job
