@@ -177,8 +177,9 @@ class RefinerConfig:
 RESTORER_TIMESTEP_POWER = 50.0
 RESTORER_SAMPLE_STEPS = 1
 RESTORER_RESIDUAL_DECODING = True
-# Four noise draws averaged per window: +0.08 dB on held-out pairs over one draw for 1.6x the
-# restore time (session 23; the autoencoder, run once, costs more than the UNet passes).
+# Four noise draws averaged per window: +0.06-0.07 dB on held-out pairs over one draw, and less
+# flicker, for 1.5-1.6x the restore time (session 23; the autoencoder, run once, costs more than
+# the UNet passes).
 RESTORER_SAMPLES = 4
 
 
