@@ -388,8 +388,9 @@ score "$S22" stage3_ref
 # Session 23 (docs/restorer.md, "Results (session 23)"): session 22's restorer 3500 steps further on
 # all 67 training scenes made by then (corpus-000..019, 023..069), scored with 1 and 4 noise draws
 # averaged; a refiner on its 4-draw outputs for 12 of its scenes and 12 it never saw
-# (corpus-071..082; the session-13 part above makes every scene up to corpus-200). (The session's job ran its first 400 steps as a 5000-step job, then resumed
-# as a 3500-step one: the same batches, a slightly different learning-rate curve before step 400.)
+# (corpus-071..082; the session-13 part above makes every scene up to corpus-200). The session's
+# restorer job ran its first 400 steps as a 5000-step job, then resumed as a 3500-step one: the
+# same batches, a slightly different learning-rate curve before step 400.
 S23=$DEV/s23
 mkdir -p "$S23"
 run "$S23/stage4.pt" "$S23/stage4.log" $RC train-restorer $WHOLE --pairs $(pairs_of $(scenes $(seq 0 19) $(seq 23 69))) \
