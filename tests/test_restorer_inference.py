@@ -8,9 +8,11 @@ import torch
 from test_restorer_models import STRUCTURE, H, W, tiny_model
 
 from recondreamer.errors import CheckpointError, RecondreamerError
+from recondreamer.restorer import inference
+from recondreamer.restorer.autoencoder import decode_latents, encode_frames
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import RestoreConfig
-from recondreamer.restorer import inference
+from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
 from recondreamer.restorer.inference import (
     blend_windows,
     clip_noise,
@@ -59,9 +61,6 @@ def test_windowed_restoration_equals_single_window_restoration_without_overlap()
     structure = rng.random((8, len(STRUCTURE), H, W)).astype(np.float32)
     long = restore_clip(restorer, frames, structure, window=4, overlap=0, num_steps=2, seed=7)
     # Each 4-frame window sampled on its own from the same slice of the clip's noise.
-    from recondreamer.restorer.autoencoder import decode_latents, encode_frames
-    from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
-
     latents = encode_frames(restorer.autoencoder, frames)
     noise = torch.randn(latents.shape, generator=torch.Generator().manual_seed(7))
     s = structure_from_uint8(structure_to_uint8(structure))
@@ -89,9 +88,6 @@ def test_averaged_samples_are_the_mean_of_single_samples_from_the_same_noise():
     rng = np.random.default_rng(2)
     frames = rng.integers(0, 256, size=(4, H, W, 3), dtype=np.uint8)
     structure = rng.random((4, len(STRUCTURE), H, W)).astype(np.float32)
-    from recondreamer.restorer.autoencoder import encode_frames
-    from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
-
     latents = encode_frames(restorer.autoencoder, frames)
     s = structure_from_uint8(structure_to_uint8(structure))
     noise = clip_noise(latents, 3, seed=5)
@@ -168,9 +164,6 @@ def test_checkpoints_round_trip_and_wrong_kinds_are_rejected(tmp_path):
 
 
 def test_residual_decoding_adds_only_the_decoded_change_to_the_input(monkeypatch):
-    from recondreamer.restorer import inference
-    from recondreamer.restorer.autoencoder import decode_latents, encode_frames
-
     restorer = tiny_model("dd2_mask", kind="restorer")
     rng = np.random.default_rng(2)
     frames = rng.integers(0, 256, size=(5, H, W, 3), dtype=np.uint8)
