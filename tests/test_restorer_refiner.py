@@ -82,7 +82,8 @@ def test_features_drifting_before_the_last_conv_do_not_switch_the_correction_off
     torch.manual_seed(0)
     restored, degraded, structure = random_frames(1, 0), random_frames(1, 1), torch.rand(1, len(STRUCTURE), H, W)
     for output_norm in (True, False):
-        refiner = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=output_norm), len(STRUCTURE)))
+        # Unbounded, so that the correction read below is the last conv's own output.
+        refiner = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=output_norm, max_correction=0.0), len(STRUCTURE)))
         before = refiner(restored, degraded, structure)
         with torch.no_grad():
             refiner.full_out.conv2.bias -= 1000.0  # every feature before the norm shifted far into SiLU's flat part
@@ -96,13 +97,31 @@ def test_features_drifting_before_the_last_conv_do_not_switch_the_correction_off
             assert gradient == 0.0
 
 
-def test_refiners_written_before_the_output_norm_load_without_it():
+def test_the_correction_is_clipped_to_max_correction_grey_levels():
     torch.manual_seed(0)
-    old = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=False), 0))
+    restored, degraded = random_frames(2, 0), random_frames(2, 1)
+    for bias in (5.0, -5.0):  # a correction of 5 pixel units = 637 grey levels, far past the bound
+        refiner = randomised(PixelRefiner(dataclasses.replace(TINY, max_correction=8.0), 0))
+        with torch.no_grad():
+            refiner.conv_out.bias.fill_(bias)
+        correction = refiner(restored, degraded) - restored
+        assert torch.allclose(correction, torch.full_like(correction, np.sign(bias) * 8.0 / 127.5), atol=1e-6)
+        unbounded = dataclasses.replace(refiner.config, max_correction=0.0)
+        refiner.config = unbounded
+        assert (refiner(restored, degraded) - restored).abs().min() > 1.0
+    small = randomised(PixelRefiner(dataclasses.replace(TINY, max_correction=1000.0), 0))
+    bounded_far_away = small(restored, degraded)
+    small.config = dataclasses.replace(small.config, max_correction=0.0)
+    assert torch.equal(bounded_far_away, small(restored, degraded))  # corrections within the bound pass unchanged
+
+
+def test_refiners_written_before_the_output_norm_and_the_bound_load_without_them():
+    torch.manual_seed(0)
+    old = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=False, max_correction=0.0), 0))
     config = config_to_dict(old.config)
-    del config["output_norm"]  # what checkpoints written before session 22 hold
+    del config["output_norm"], config["max_correction"]  # what checkpoints written before session 22 hold
     loaded = refiner_from_payload({"config": config, "structure_channels": 0, "state": old.state_dict()})
-    assert not loaded.config.output_norm
+    assert not loaded.config.output_norm and loaded.config.max_correction == 0.0
     restored, degraded = random_frames(1, 0), random_frames(1, 1)
     assert torch.equal(loaded(restored, degraded), old(restored, degraded))
 
@@ -373,8 +392,12 @@ def test_train_refiner_command_rejects_bad_options(tmp_path, capsys):
     assert "--temporal-neighbours must be >= 0" in capsys.readouterr().err
     assert main([*base, "--samples", "0"]) == 1
     assert "--samples must be >= 1" in capsys.readouterr().err
-    assert main([*base, "--steps", "1", "--batch-size", "1", "--crop", "16", "--width", "4", "--no-output-norm"]) == 0
-    assert not load_restorer(tmp_path / "o.pt").refiner.config.output_norm
+    assert main([*base, "--max-correction", "-1"]) == 1
+    assert "--max-correction must be >= 0 grey levels" in capsys.readouterr().err
+    assert main([*base, "--steps", "1", "--batch-size", "1", "--crop", "16", "--width", "4", "--no-output-norm",
+                 "--max-correction", "6"]) == 0
+    written = load_restorer(tmp_path / "o.pt").refiner.config
+    assert not written.output_norm and written.max_correction == 6.0
     (tmp_path / "o.pt").unlink()
     assert main(["train-refiner", "--restorer", str(pairs), "--pairs", str(pairs), "--out", str(tmp_path / "o.pt")]) == 1
     assert not (tmp_path / "o.pt").exists()

@@ -115,6 +115,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-structure", action="store_true", help="do not show the refiner the structure maps (dd2 archs)")
     p.add_argument("--no-output-norm", action="store_true",
                    help="build the refiner without the channel norm before its last conv, as refiners before session 22 were")
+    p.add_argument("--max-correction", type=float, default=None,
+                   help="largest change the refiner may make to a pixel, in grey levels of 255 (default 12; 0: unbounded)")
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_train_refiner)
@@ -347,7 +349,7 @@ def run_train_refiner(args: argparse.Namespace) -> int:
     overrides = {
         "steps": args.steps, "batch_size": args.batch_size, "crop": args.crop, "width": args.width,
         "learning_rate": args.learning_rate, "ema_decay": args.ema_decay, "seed": args.seed,
-        "temporal_neighbours": args.temporal_neighbours,
+        "temporal_neighbours": args.temporal_neighbours, "max_correction": args.max_correction,
     }
     overrides = {k: v for k, v in overrides.items() if v is not None}
     config = dataclasses.replace(RefinerConfig(), use_structure=not args.no_structure, output_norm=not args.no_output_norm, **overrides)
@@ -358,6 +360,8 @@ def run_train_refiner(args: argparse.Namespace) -> int:
         raise RecondreamerError(f"--temporal-neighbours must be >= 0, got {config.temporal_neighbours}")
     if not 0.0 <= config.ema_decay < 1.0:
         raise RecondreamerError(f"--ema-decay must be in [0, 1), got {config.ema_decay}")
+    if config.max_correction < 0:
+        raise RecondreamerError(f"--max-correction must be >= 0 grey levels (0: unbounded), got {config.max_correction}")
     if args.samples is not None and args.samples < 1:
         raise RecondreamerError(f"--samples must be >= 1, got {args.samples}")
     _set_threads(args)

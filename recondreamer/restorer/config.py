@@ -156,6 +156,12 @@ class RefinerConfig:
     use_structure: bool = True  # also see the structure maps (dd2 archs' conditions)
     temporal_neighbours: int = 0  # also see the restored and degraded frames this many frames before and after (0: per frame)
     output_norm: bool = True  # per-pixel channel norm before the last activation (refiner.PixelChannelNorm)
+    # Largest change the correction may make to a pixel, in grey levels of 255 (0: unbounded). The
+    # refiner learns small edge corrections (1-2 levels on average) from 64-pixel crops; on a flat
+    # surface filling much of a frame, unlike its crops, an unbounded one brightened a truck's side
+    # by up to 159 levels and cost 5 dB. Clipping that refiner's correction at 12 levels scored best
+    # of 2-255 on 4 scenes neither it nor its restorer saw (docs/restorer.md, session 24).
+    max_correction: float = 12.0
     steps: int = 3000
     batch_size: int = 8  # crops per step
     crop: int = 64  # crop side in pixels

@@ -133,8 +133,9 @@ def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> Gen
 
 def refiner_from_payload(payload: dict) -> PixelRefiner:
     """The pixel refiner stored in a restorer checkpoint's ``refiner`` entry (``training.train_refiner``)."""
-    # Refiners written before ``output_norm`` existed were built without the norm.
-    config = config_from_dict(RefinerConfig, {"output_norm": False, **payload["config"]})
+    # Refiners written before ``output_norm`` existed were built without the norm, and those written
+    # before ``max_correction`` without a bound on their correction.
+    config = config_from_dict(RefinerConfig, {"output_norm": False, "max_correction": 0.0, **payload["config"]})
     refiner = PixelRefiner(config, payload["structure_channels"])
     refiner.load_state_dict(payload["state"])
     return refiner.eval()

@@ -47,7 +47,8 @@ class PixelRefiner(nn.Module):
 
     Widths ``w``, ``2w``, ``3w`` at full, half and quarter resolution; ``bottleneck_blocks`` residual
     blocks at quarter resolution (the autoencoder's plain residual blocks: no normalisation, since
-    the refiner trains on crops and runs on whole frames). Output: restored + correction, in [-1,1] pixel units.
+    the refiner trains on crops and runs on whole frames). Output: restored + correction, in [-1,1]
+    pixel units, the correction clipped to ``config.max_correction`` grey levels when that is set.
     """
 
     def __init__(self, config: RefinerConfig, structure_channels: int):
@@ -89,7 +90,11 @@ class PixelRefiner(nn.Module):
         quarter = self.bottleneck(self.down_quarter(F.silu(half)))
         half = self.half_out(half + self.up_half(F.interpolate(quarter, size=half.shape[-2:], mode="nearest")))
         full = self.full_out(full + self.up_full(F.interpolate(half, size=full.shape[-2:], mode="nearest")))
-        return restored + self.conv_out(F.silu(self.norm_out(full)))
+        correction = self.conv_out(F.silu(self.norm_out(full)))
+        if self.config.max_correction:
+            bound = self.config.max_correction / 127.5  # grey levels -> [-1,1] pixel units
+            correction = correction.clamp(-bound, bound)
+        return restored + correction
 
     def _check_inputs(self, restored, degraded, structure, neighbours) -> None:
         if restored.dim() != 4 or restored.shape[1] != 3:
