@@ -402,3 +402,27 @@ done
 run "$S23/stage4_ref.pt" "$S23/stage4_ref.log" $RC train-refiner --restorer "$S23/stage4.pt" --samples 4 \
   --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 71 82))) --out "$S23/stage4_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
 score "$S23" stage4_ref
+
+# Session 24 (docs/restorer.md, "Results (session 24)"): session 23's refiner with its correction
+# clipped after the fact (benchmarks/refiner_bound.py), on 4 scenes made this session that no network
+# trained on (corpus-095..098; the bound of 12 grey levels, RefinerConfig.max_correction's default,
+# was chosen there) and on both held-out sets; session 23's restorer 3500 steps further on all 79
+# training scenes made by then (corpus-000..019, 023..082); a refiner with the default bound on its
+# 4-draw outputs for 12 of its scenes and 12 it never saw (corpus-083..094). (The restorer's
+# --samples 4 overrides RESTORER_OPTIONS' 1: it stores 4 draws, as train-restorer now does by default.)
+S24=$DEV/s24
+mkdir -p "$S24"
+python benchmarks/refiner_bound.py --restorer "$S23/stage4_ref.pt" --pairs "$DEV"/pairs-train/corpus-09[5-8]__street*.npz \
+  | tee "$S24/bound_stage4_ref_val.txt"
+for heldout in pairs-heldout pairs-heldout2; do
+  python benchmarks/refiner_bound.py --restorer "$S23/stage4_ref.pt" --pairs "$DEV/$heldout" | tee "$S24/bound_stage4_ref_$heldout.txt"
+done
+run "$S24/stage5.pt" "$S24/stage5.log" $RC train-restorer $WHOLE --samples 4 --pairs $(pairs_of $(scenes $(seq 0 19) $(seq 23 82))) \
+  --init-restorer "$S23/stage4.pt" --out "$S24/stage5.pt" --steps 3500 --ema-decay 0.999 --seed 0
+for heldout in pairs-heldout pairs-heldout2; do
+  python benchmarks/restorer.py --pairs "$DEV/$heldout" --stages-per-run 2 --steps 1 --samples 1 4 \
+    --restorer dd2_mask="$S24/stage5.pt" --threads 1 | tee "$S24/${heldout}_stage5.txt"
+done
+run "$S24/stage5_ref.pt" "$S24/stage5_ref.log" $RC train-refiner --restorer "$S24/stage5.pt" --samples 4 --max-correction 12 \
+  --pairs $(pairs_of $(scenes $(seq 0 11) $(seq 83 94))) --out "$S24/stage5_ref.pt" --steps 5000 --temporal-neighbours 2 --threads 1
+score "$S24" stage5_ref
