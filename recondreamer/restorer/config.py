@@ -159,8 +159,8 @@ class RefinerConfig:
     # Largest change the correction may make to a pixel, in grey levels of 255 (0: unbounded). The
     # refiner learns small edge corrections (1-2 levels on average) from 64-pixel crops; on a flat
     # surface filling much of a frame, unlike its crops, an unbounded one brightened a truck's side
-    # by up to 159 levels and cost 5 dB. Clipping that refiner's correction at 12 levels scored best
-    # of 2-255 on 4 scenes neither it nor its restorer saw (docs/restorer.md, session 24).
+    # to up to 159 levels from the truth and cost 5 dB. Clipping that refiner's correction at 12 levels
+    # scored best of 2-64 and none on 4 scenes neither it nor its restorer saw (docs/restorer.md, session 24).
     max_correction: float = 12.0
     steps: int = 3000
     batch_size: int = 8  # crops per step
