@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from restorer import scored_clips  # noqa: E402  benchmarks/restorer.py
-from restorer_variants import mean_psnr  # noqa: E402  benchmarks/restorer_variants.py
+from restorer_variants import mean_psnr, print_gain_table  # noqa: E402  benchmarks/restorer_variants.py
 
 CHECK_BOUND = 12
 
@@ -85,11 +85,7 @@ def main() -> None:
     print(f"{args.restorer}: {len(clips)} held-out clips; its refiner's own bound: {own_bound:g} grey levels (0: unbounded)")
     print(f"check: refiner run with max_correction {CHECK_BOUND} against its unbounded output clipped at {CHECK_BOUND}: "
           f"largest difference {difference} grey levels")
-    print(f"{'variant':24s} {'gain dB':>7s} {'orig':>6s} {'novel':>6s}")
-    for name, rows in gains.items():
-        by_kind = {k: [g for kind, g in rows if kind == k] for k in ("orig", "novel")}
-        split = [f"{np.mean(v):6.2f}" if v else f"{'-':>6s}" for v in by_kind.values()]
-        print(f"{name:24s} {np.mean([g for _, g in rows]):7.2f} {split[0]} {split[1]}")
+    print_gain_table(gains)
 
 
 if __name__ == "__main__":

@@ -41,6 +41,15 @@ def mean_psnr(clip: np.ndarray, gt: np.ndarray) -> float:  # (T,H,W,3) float or 
     return float(np.mean([psnr(a, b) for a, b in zip(frames, gt)]))
 
 
+def print_gain_table(gains: dict[str, list[tuple[str, float]]]) -> None:
+    """One row per variant: its mean gain (dB) over all clips and over the orig and novel ones."""
+    print(f"{'variant':24s} {'gain dB':>7s} {'orig':>6s} {'novel':>6s}")
+    for name, rows in gains.items():
+        by_kind = {k: [g for kind, g in rows if kind == k] for k in ("orig", "novel")}
+        split = [f"{np.mean(v):6.2f}" if v else f"{'-':>6s}" for v in by_kind.values()]
+        print(f"{name:24s} {np.mean([g for _, g in rows]):7.2f} {split[0]} {split[1]}")
+
+
 def variant_outputs(restorer, degraded: np.ndarray, structure, seeds: int, gains: list[float]) -> dict[str, np.ndarray]:
     """Every variant's output clip (float, 0-255) for one degraded clip."""
     from recondreamer.restorer.inference import restore_clip
@@ -88,11 +97,7 @@ def main() -> None:
         print(f"clip {index + 1}/{len(clips)} ({kind}) done", file=sys.stderr, flush=True)
 
     print(f"{args.restorer}: {len(clips)} held-out clips, 1 DDIM step")
-    print(f"{'variant':24s} {'gain dB':>7s} {'orig':>6s} {'novel':>6s}")
-    for name, rows in gains.items():
-        by_kind = {k: [g for kind, g in rows if kind == k] for k in ("orig", "novel")}
-        split = [f"{np.mean(v):6.2f}" if v else f"{'-':>6s}" for v in by_kind.values()]
-        print(f"{name:24s} {np.mean([g for _, g in rows]):7.2f} {split[0]} {split[1]}")
+    print_gain_table(gains)
 
 
 if __name__ == "__main__":
