@@ -49,6 +49,76 @@ def test_fid_reports_rank_deficiency_and_rejects_too_few_samples():
         frechet.fid_from_features(rng.normal(size=(5, 4)), rng.normal(size=(5, 3)))
 
 
+class TestKID:
+    def test_equal_distributions_give_zero(self):
+        rng = np.random.default_rng(3)
+        result = frechet.kid_from_features(rng.normal(size=(2000, 4)), rng.normal(size=(2000, 4)), subset_size=500, num_subsets=20)
+        assert abs(result["kid"]) < 3 * result["kid_std"] / np.sqrt(result["num_subsets"]) + 1e-3
+        assert result["kid_std"] > 0 and result["subset_size"] == 500
+
+    def test_shifted_gaussians_match_the_closed_form(self):
+        # 1-D, kernel (xy + 1)^3 = x^3 y^3 + 3 x^2 y^2 + 3 x y + 1, so the population MMD^2 is
+        # (E x^3 - E y^3)^2 + 3 (E x^2 - E y^2)^2 + 3 (E x - E y)^2; for N(0,1) vs N(1,1):
+        # moments (0, 1, 0) and (1, 2, 4): 16 + 3 + 3 = 22.
+        rng = np.random.default_rng(4)
+        result = frechet.kid_from_features(rng.normal(size=(20000, 1)), rng.normal(loc=1.0, size=(20000, 1)), subset_size=1000, num_subsets=20)
+        assert result["kid"] == pytest.approx(22.0, rel=0.1)
+
+    def test_unbiased_estimator_matches_a_loop_reference(self):
+        rng = np.random.default_rng(5)
+        x, y = rng.normal(size=(7, 3)), rng.normal(size=(7, 3))
+        k = lambda a, b: (a @ b / 3 + 1) ** 3  # noqa: E731
+        m = len(x)
+        within = sum(k(x[i], x[j]) + k(y[i], y[j]) for i in range(m) for j in range(m) if i != j) / (m * (m - 1))
+        across = sum(k(x[i], y[j]) for i in range(m) for j in range(m)) / m**2
+        assert frechet.mmd2_unbiased(x, y) == pytest.approx(within - 2 * across)
+
+    def test_exceptions(self):
+        rng = np.random.default_rng(6)
+        with pytest.raises(ValueError, match="at least 2 samples"):
+            frechet.kid_from_features(rng.normal(size=(1, 3)), rng.normal(size=(5, 3)))
+        with pytest.raises(ValueError, match="same D"):
+            frechet.kid_from_features(rng.normal(size=(5, 3)), rng.normal(size=(5, 2)))
+        with pytest.raises(ValueError, match="subset size"):
+            frechet.kid_from_features(rng.normal(size=(5, 3)), rng.normal(size=(5, 3)), subset_size=6)
+
+
+class TestPooledFID:
+    def test_full_dimension_equals_the_plain_fid(self):
+        rng = np.random.default_rng(7)
+        a, b = rng.normal(size=(300, 5)), rng.normal(loc=0.5, size=(300, 5))
+        assert frechet.pooled_fid_from_features(a, b, dim=5)["fid"] == pytest.approx(frechet.fid_from_features(a, b)["fid"], rel=1e-9)
+
+    def test_shifted_gaussians_give_the_squared_shift(self):
+        rng = np.random.default_rng(8)
+        shift = np.array([1.0, -0.5, 0.0, 0.25])
+        result = frechet.pooled_fid_from_features(rng.normal(size=(20000, 4)) + shift, rng.normal(size=(20000, 4)))
+        assert result["fid_dim"] == 4 and result["fid"] == pytest.approx(float(shift @ shift), abs=0.02)
+
+    def test_dimension_follows_the_sample_count(self):
+        assert frechet.fid_dimension(192, 128) == 48
+        assert frechet.fid_dimension(24, 128) == 6
+        assert frechet.fid_dimension(10000, 128) == 128
+        assert frechet.fid_dimension(2, 128) == 1
+
+    def test_pooling_segments_removes_the_small_sample_bias(self):
+        # 8 segments of 24 frames, both sets from one distribution: the true FID is 0. Averaging
+        # per-segment FIDs (24 samples in 16 dimensions) is biased far above it; pooling is not.
+        rng = np.random.default_rng(9)
+        segments = [(rng.normal(size=(24, 16)), rng.normal(size=(24, 16))) for _ in range(8)]
+        per_segment = np.mean([frechet.fid_from_features(a, b)["fid"] for a, b in segments])
+        pooled = frechet.pooled_fid_from_features(np.concatenate([a for a, _ in segments]), np.concatenate([b for _, b in segments]))
+        assert pooled["num_samples"] == [192, 192] and pooled["fid_dim"] == 16
+        assert pooled["fid"] < 0.25 * per_segment
+
+    def test_exceptions(self):
+        rng = np.random.default_rng(10)
+        with pytest.raises(ValueError, match="dimension must lie"):
+            frechet.pooled_fid_from_features(rng.normal(size=(20, 4)), rng.normal(size=(20, 4)), dim=5)
+        with pytest.raises(ValueError, match="same D"):
+            frechet.pooled_fid_from_features(rng.normal(size=(20, 4)), rng.normal(size=(20, 3)))
+
+
 # ---------------------------------------------------------------- NTA-IoU matching rules
 
 

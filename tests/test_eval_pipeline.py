@@ -9,7 +9,7 @@ from PIL import Image
 
 from recondreamer.cli import main
 from recondreamer.errors import CheckpointError
-from recondreamer.evaluation import gates, inference, lanes, nta_iou
+from recondreamer.evaluation import frechet, gates, inference, lanes, nta_iou
 from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
 from recondreamer.evaluation.renders import RenderError, load_render_frames
 from recondreamer.evaluation.training import detector_targets
@@ -171,15 +171,23 @@ def test_evaluate_command_writes_every_metric(scene, scene_dir, tiny_models, tmp
     assert per["shift@3"]["truth"]["psnr"]["num_identical_frames"] == scene.num_frames
     assert per["shift@6"]["truth"]["psnr"]["mean"] < 30 and per["shift@6"]["truth"]["psnr_lanes"]["num_frames"] > 0
     for name in dirs:
-        assert set(per[name]) >= {"nta_iou", "ntl_iou", "fid", "truth"}
+        assert set(per[name]) >= {"nta_iou", "ntl_iou", "fid", "kid", "truth"}
+    assert per["original"]["kid"]["kid"] < per["shift@6"]["kid"]["kid"]
     settings = doc["settings"]
     assert len(settings["models"]["vehicle_detector"]["sha256"]) == 64
     assert settings["nta_iou"]["match_distance_px"] == pytest.approx(2.0)  # 96x64 is 1/5 of 480x320
     assert "not pytorch-fid's InceptionV3" in settings["fid_feature_network"]
     assert doc["fid_pooled"]["num_samples"][0] == 3 * scene.num_frames
     pooled = tmp_path / "pooled.json"
+    features = dict(np.load(out.with_suffix(".features.npz")))
+    assert main(["fid-pool", str(out.with_suffix(".features.npz")), "--out", str(pooled), "--trajectory", "shift@6"]) == 0
+    result = json.loads(pooled.read_text())
+    expected = frechet.pooled_fid_from_features(features["render:shift@6"], features["reference"])
+    assert result["fid"] == pytest.approx(expected["fid"]) and result["fid_dim"] == expected["fid_dim"]
+    assert result["kid"] == pytest.approx(frechet.kid_from_features(features["render:shift@6"], features["reference"])["kid"])
+    assert result["num_samples"] == [scene.num_frames, scene.num_frames] and result["trajectory"] == "shift@6"
     assert main(["fid-pool", str(out.with_suffix(".features.npz")), "--out", str(pooled)]) == 0
-    assert json.loads(pooled.read_text())["fid"] == pytest.approx(doc["fid_pooled"]["fid"])
+    assert json.loads(pooled.read_text())["num_samples"] == [3 * scene.num_frames, scene.num_frames]
 
 
 def test_evaluate_with_run_renders_then_scores_like_render_and_evaluate(scene, scene_dir, tiny_models, tmp_path):

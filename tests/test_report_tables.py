@@ -7,7 +7,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from metric_fixtures import write_metrics
+
 from recondreamer.cli import main
+from recondreamer.evaluation import frechet
 from recondreamer.report.layout import Method, format_stride, metrics_file
 from recondreamer.report.plan import ExperimentPlan
 from recondreamer.report.tables import (
@@ -25,29 +28,6 @@ def small_plan() -> ExperimentPlan:
         segments=SEGMENTS, trajectories=TRAJECTORIES, backbones=("pvg", "s3", "deformable", "street"),
         dd4d_backbones=("pvg", "s3", "deformable"), restorers=("sd", "svd", "dd2", "dd2_mask"), strides=(0.5, 1.0, 1.5, 3.0, 6.0),
     )
-
-
-def write_metrics(results, plan, seed=0, truth=True):
-    """One evaluate-style metrics file per (segment, run); returns {(segment, run, trajectory): values}."""
-    rng = np.random.default_rng(seed)
-    raw = {}
-    for segment in plan.segments:
-        for method in plan.runs():
-            trajectories = {}
-            for trajectory in plan.trajectories:
-                values = {"nta": rng.uniform(0.05, 0.6), "ntl": rng.uniform(0.4, 0.6), "fid": rng.uniform(50, 300), "psnr": rng.uniform(15, 30), "ssim": rng.uniform(0.3, 0.9)}
-                raw[(segment, method.run_id, trajectory)] = values
-                trajectories[trajectory] = {
-                    "trajectory": trajectory,
-                    "nta_iou": {"nta_iou": values["nta"], "num_gt_boxes": 12},
-                    "ntl_iou": {"ntl_iou": values["ntl"], "lane_iou": 0.2},
-                    "fid": {"fid": values["fid"]},
-                    "truth": {"psnr": {"mean": values["psnr"]}, "ssim": {"mean": values["ssim"]}} if truth else None,
-                }
-            path = metrics_file(results, segment, method.run_id)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text(json.dumps({"scene": {"scene_id": segment}, "trajectories": trajectories}))
-    return raw
 
 
 def plan_cli_args(plan):
@@ -70,7 +50,7 @@ def test_means_and_relative_improvements_match_an_independent_computation(tmp_pa
     out = tmp_path / "tables"
     assert main(["make-tables", "--results", str(tmp_path / "results"), "--out", str(out), "--tables", "1", "2", "4", "5", *plan_cli_args(plan)]) == 0
 
-    table1 = pd.read_csv(out / "table1.csv", index_col="row")
+    table1 = pd.read_csv(out / "table1.csv", index_col="row", comment="#")
     ours, base = plan.recondreamer("street").run_id, plan.baseline("street").run_id
     # Mean over segments of one cell.
     expected = np.mean([raw[(s, ours, "shift@6")]["nta"] for s in SEGMENTS])
@@ -82,11 +62,26 @@ def test_means_and_relative_improvements_match_an_independent_computation(tmp_pa
     relative = table1[table1["kind"] == "relative_improvement_pct"]
     row = "ReconDreamer with Street Gaussians vs Street Gaussians"
     assert relative.loc[row, "Average | NTA-IoU"] == pytest.approx(100 * (avg(ours, "nta") - avg(base, "nta")) / avg(base, "nta"), rel=1e-5)
-    assert relative.loc[row, "Average | FID"] == pytest.approx(100 * (avg(base, "fid") - avg(ours, "fid")) / avg(base, "fid"), rel=1e-5)
+    # FID and KID: the features of all segments pooled, per trajectory; Average = mean over trajectories.
+    def pooled(run, trajectory):
+        renders = np.concatenate([raw[(s, run, trajectory)]["features"] for s in SEGMENTS])
+        reference = np.concatenate([raw[("reference", s)] for s in SEGMENTS])
+        return frechet.pooled_fid_from_features(renders, reference)["fid"], 1000 * frechet.kid_from_features(renders, reference)["kid"]
+
+    fid_ours, kid_ours = pooled(ours, "shift@6")
+    assert table1.loc["ReconDreamer with Street Gaussians", "Lane Shift @ 6m | FID"] == pytest.approx(fid_ours, rel=1e-5)
+    assert table1.loc["ReconDreamer with Street Gaussians", "Lane Shift @ 6m | KIDx1000"] == pytest.approx(kid_ours, rel=1e-5)
+    fid_avg = lambda run: np.mean([pooled(run, t)[0] for t in TRAJECTORIES])  # noqa: E731
+    assert relative.loc[row, "Average | FID"] == pytest.approx(100 * (fid_avg(base) - fid_avg(ours)) / fid_avg(base), rel=1e-5)
     assert "Average | PSNR" in table1.columns and "Lane Shift @ 3m | SSIM" in table1.columns
+    pooled_csv = pd.read_csv(out / "table1_pooled.csv")
+    cell = pooled_csv[(pooled_csv["run"] == ours) & (pooled_csv["trajectory"] == "shift@6")].iloc[0]
+    assert cell["num_rendered"] == cell["num_reference"] == 12 * len(SEGMENTS) and cell["fid_dim"] == 6 and cell["kid_std"] > 0
+    notes = (out / "table1.md").read_text()
+    assert "pool the FID features of all 3 segment(s): 36 rendered vs 36 reference frames" in notes and "test features" in notes
 
     # Table 5: each stride against the main stride (1.5 m), the paper's "decrease" convention.
-    table5 = pd.read_csv(out / "table5.csv", index_col="row")
+    table5 = pd.read_csv(out / "table5.csv", index_col="row", comment="#")
     assert list(table5[table5["kind"] == "mean"].index) == ["0.5m", "1.0m", "1.5m", "3.0m", "6.0m"]
     assert "0.5m vs 1.5m" in table5.index
 
@@ -97,7 +92,9 @@ def test_means_and_relative_improvements_match_an_independent_computation(tmp_pa
     for number in (1, 2, 4, 5):
         for suffix in ("md", "tex", "html"):
             assert (out / f"table{number}.{suffix}").stat().st_size > 200
-    assert r"\multicolumn{5}{c}{Lane Shift @ 3m}" in (out / "table1.tex").read_text()
+    assert r"\multicolumn{6}{c}{Lane Shift @ 3m}" in (out / "table1.tex").read_text()
+    for suffix in ("csv", "md", "tex", "html"):  # every format carries the notes
+        assert "pool the FID features" in (out / f"table1.{suffix}").read_text()
 
 
 def test_paper_numbers_reproduce_the_quoted_relative_improvements():
@@ -123,7 +120,7 @@ def test_truth_columns_dropped_without_true_views_and_partial_truth_is_an_error(
     plan = small_plan()
     write_metrics(tmp_path, plan, truth=False)
     table = build_tables(plan, tmp_path, [1])[0]
-    assert {m for _, m in table.values.columns} == {"NTA-IoU", "NTL-IoU", "FID"}
+    assert {m for _, m in table.values.columns} == {"NTA-IoU", "NTL-IoU", "FID", "KIDx1000"}
     write_metrics(tmp_path / "mixed", plan)
     path = metrics_file(tmp_path / "mixed", "seg-a", "baseline-pvg")
     document = json.loads(path.read_text())

@@ -46,6 +46,7 @@ def job_counts(output: str) -> dict[str, int]:
 def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments: bool, judge: bool, synthetic: bool) -> dict[str, int]:
     """Jobs per rule derived from the paper's design, independently of the workflow code."""
     runs_per_segment = 4 + 3 + 4 + 3 + 4  # baselines, DD4D on 3, ReconDreamer main on 4 backbones, +3 restorers, +4 strides
+    runs_per_segment += 1 if synthetic else 0  # table 1's upper bound: the true novel views in the loop
     counts = {
         ("synth_segment" if synthetic else "convert_waymo"): segments,
         "synth_corpus_scene": corpus,
@@ -60,10 +61,13 @@ def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments:
         "generate_dd4d": 3 * segments,  # DriveDreamer4D's 3 trajectories, generated once per segment
         "train_dd4d": 3 * segments,
         "train_recondreamer": 11 * segments,
+        "train_recondreamer_truth": segments if synthetic else 0,
         "evaluate": runs_per_segment * segments,  # renders the run along every trajectory, then scores it
         "judge": 1 if judge else 0,
         "study_page": 1,
+        "run_config": 1,
         "make_tables": 1,
+        "findings": 1,
         "make_plots": 1,
         "pdus_figure": segments,
         "benchmark_summary": 1,

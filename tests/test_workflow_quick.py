@@ -66,7 +66,7 @@ def test_quick_config_end_to_end(tmp_path):
         5: ["0.5m", "1.0m", "1.5m", "3.0m", "6.0m"],
     }
     for number, rows in expected_rows.items():
-        table = pd.read_csv(tables / f"table{number}.csv", index_col="row")
+        table = pd.read_csv(tables / f"table{number}.csv", index_col="row", comment="#")
         means = table[table["kind"] == "mean"] if "kind" in table.columns else table
         assert list(means.index) == rows
         for suffix in ("md", "tex", "html"):

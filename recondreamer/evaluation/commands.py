@@ -63,8 +63,16 @@ def register(subparsers) -> None:
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.set_defaults(func=_evaluate)
 
-    p = subparsers.add_parser("fid-pool", help="FID pooled over several evaluate runs (scenes and trajectories)", description="Pool the FID features written by several 'evaluate' runs: all rendered frames against all reference frames (one set per scene).")
+    p = subparsers.add_parser(
+        "fid-pool",
+        help="FID and KID pooled over several evaluate runs (scenes and trajectories)",
+        description="Pool the FID features written by several 'evaluate' runs: all rendered frames (of every "
+        "trajectory, or of --trajectory) against all reference frames (one set per scene). FID is computed in the "
+        "leading principal subspace of the reference features (one dimension per 4 samples of the smaller set), "
+        "KID in the full feature space.",
+    )
     p.add_argument("features", nargs="+", type=Path, help="feature files (.features.npz) written by evaluate")
+    p.add_argument("--trajectory", default=None, help="pool only this trajectory's renders (default: every trajectory)")
     p.add_argument("--out", required=True, type=Path, help="JSON file to write")
     p.set_defaults(func=_fid_pool)
 
@@ -170,9 +178,9 @@ def _fid_pool(args: argparse.Namespace) -> int:
     from recondreamer.evaluation.evaluate import pooled_fid
     from recondreamer.io import write_json_atomic
 
-    result = pooled_fid(args.features)
+    result = pooled_fid(args.features, args.trajectory)
     write_json_atomic(args.out, result)
-    log.info("pooled FID %.4f over %d scenes -> %s", result["fid"], result["num_scenes"], args.out)
+    log.info("pooled FID %.4f (%d dims), KID %.5f +- %.5f over %d scenes -> %s", result["fid"], result["fid_dim"], result["kid"], result["kid_std"], result["num_scenes"], args.out)
     return 0
 
 

@@ -9,10 +9,13 @@ score). Targets per frame:
 - detector gate (AP50): the NTA-IoU ground truth (vehicles with enough LiDAR points, in front,
   fully inside the image); the other vehicles in view are "ignore" boxes, so detecting them
   is neither a hit nor a false positive;
-- lane segmenter: the NTL-IoU ground-truth lane mask of the map in that camera (see
-  ``docs/evaluation.md`` for why not the semantic lane-marking class), plus the drivable
-  area (semantic road and lane-marking pixels) for the twin head; the map mask ignores
-  occlusion, so vehicle pixels are left out of the lane loss and of the lane gate;
+- lane segmenter: the lane markings visible in the frame (the renderer's semantic
+  ``lane_marking`` class), as TwinLiteNet learns painted lanes from images, plus the drivable
+  area (semantic road and lane-marking pixels) for the twin head. Not the map-projected mask:
+  that mask is NTL-IoU's ground truth and also conditions DriveRestorer and DriveDreamer4D, so
+  a segmenter trained on it would reward renders that copy the conditioning rather than paint
+  the lanes (``docs/evaluation.md``). The map mask in that camera is kept beside it for the
+  gate's clean-frame NTL-IoU;
 - FID feature network: the semantic labels.
 """
 
@@ -43,8 +46,8 @@ class FrameSample:
     train_boxes: np.ndarray  # (n,4) xyxy, detector targets
     eval_boxes: np.ndarray  # (m,4) xyxy, NTA-IoU ground truth
     ignore_boxes: np.ndarray  # (k,4) xyxy, other vehicles in view
-    lane_mask: np.ndarray  # (H,W) bool
-    occluded: np.ndarray | None  # (H,W) bool, vehicle pixels: map lines behind them cannot be seen
+    lane_mask: np.ndarray  # (H,W) bool, visible lane markings (the segmenter's target)
+    map_lane_mask: np.ndarray  # (H,W) bool, NTL-IoU ground truth: the map's lane lines in this camera
     road_mask: np.ndarray | None  # (H,W) bool
     semantics: np.ndarray | None  # (H,W) uint8
 
@@ -102,7 +105,9 @@ def scene_samples(
 ) -> list[FrameSample]:
     """Samples of the given frames of the given trajectories ('original' or true novel views)."""
     road_ids = [scene.semantic_classes.index(name) for name in ("road", "lane_marking") if name in scene.semantic_classes]
-    vehicle_id = scene.semantic_classes.index("vehicle") if "vehicle" in scene.semantic_classes else None
+    if "lane_marking" not in scene.semantic_classes:
+        raise RecondreamerError(f"{scene.scene_id}: the scene's semantic classes have no 'lane_marking' (the lane segmenter's target)")
+    marking_id = scene.semantic_classes.index("lane_marking")
     samples = []
     for name in trajectories:
         cams = scene.trajectory(name)
@@ -121,8 +126,8 @@ def scene_samples(
                     train_boxes=train,
                     eval_boxes=evaluated,
                     ignore_boxes=ignored,
-                    lane_mask=lane_mask(scene.map_polylines, scene.K, cams[t], scene.width, scene.height),
-                    occluded=None if semantics is None or vehicle_id is None else semantics == vehicle_id,
+                    lane_mask=semantics == marking_id,
+                    map_lane_mask=lane_mask(scene.map_polylines, scene.K, cams[t], scene.width, scene.height),
                     road_mask=None if semantics is None or not road_ids else np.isin(semantics, road_ids),
                     semantics=None if semantics is None else np.ascontiguousarray(semantics),
                 )

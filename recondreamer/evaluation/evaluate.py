@@ -119,18 +119,22 @@ def evaluate_trajectory(scene, trajectory: str, frames: np.ndarray, models: Eval
     lane_pred = list(inference.segment_lanes(models.lanes.module, frames))
     lane_result = lanes.ntl_iou(lane_pred, lane_truth)
     features = inference.fid_features(models.features.module, frames)
+    # Per scene: a diagnostic (24-40 frames against as many dimensions); the tables pool the
+    # features of all segments instead (make-tables, fid-pool).
     fid = frechet.fid_from_features(features, reference_features)
+    kid = frechet.kid_from_features(features, reference_features)
     metrics = {
         "trajectory": trajectory,
         "num_frames": int(len(frames)),
         "nta_iou": agents,
         "ntl_iou": lane_result,
         "fid": fid,
+        "kid": kid,
         "truth": truth_metrics(scene, trajectory, frames, lane_truth),
     }
     log.info(
-        "%s %s: NTA-IoU %s, NTL-IoU %.4f (lane IoU %s), FID %.3f",
-        scene.scene_id, trajectory, _fmt(agents["nta_iou"]), lane_result["ntl_iou"], _fmt(lane_result["lane_iou"]), fid["fid"],
+        "%s %s: NTA-IoU %s, NTL-IoU %.4f (lane IoU %s), FID %.3f, KID %.5f (per scene)",
+        scene.scene_id, trajectory, _fmt(agents["nta_iou"]), lane_result["ntl_iou"], _fmt(lane_result["lane_iou"]), fid["fid"], kid["kid"],
     )
     return metrics, features
 
@@ -205,29 +209,83 @@ def write_features(path: str | Path, scene_id: str, features: dict[str, np.ndarr
     write_bytes_atomic(path, buffer.getvalue())
 
 
-def pooled_fid(feature_files: list[str | Path]) -> dict:
-    """FID of all renders of several evaluations against all their reference frames (one set per scene)."""
-    renders, references, scenes, models, networks = [], [], set(), set(), set()
-    for path in feature_files:
-        path = Path(path)
-        if not path.is_file():
-            raise RecondreamerError(f"{path}: FID feature file not found (written by 'recondreamer evaluate' beside metrics.json)")
-        try:
-            data = dict(np.load(path, allow_pickle=False))
-        except Exception as error:
-            raise RecondreamerError(f"{path}: not a readable feature file ({error})") from None
-        if "reference" not in data or "feature_model_sha256" not in data:
-            raise RecondreamerError(f"{path}: not a feature file written by 'recondreamer evaluate'")
-        models.add(str(data["feature_model_sha256"]))
-        networks.add(str(data["feature_network"]) if "feature_network" in data else FID_FEATURES_NOTE)  # older files: corpus network only
-        scene_id = str(data["scene_id"])
-        if scene_id not in scenes:
-            references.append(data["reference"])
-            scenes.add(scene_id)
-        renders.extend(value for key, value in data.items() if key.startswith("render:"))
+@dataclass
+class FeatureFile:
+    """The FID features of one 'evaluate' run: its scene's reference frames and each trajectory's renders."""
+
+    path: Path
+    scene_id: str
+    model_sha256: str
+    network: str
+    reference: np.ndarray  # (T,D)
+    renders: dict[str, np.ndarray]  # trajectory -> (T,D)
+
+
+def read_feature_file(path: str | Path) -> FeatureFile:
+    path = Path(path)
+    if not path.is_file():
+        raise RecondreamerError(f"{path}: FID feature file not found (written by 'recondreamer evaluate' beside metrics.json)")
+    try:
+        data = dict(np.load(path, allow_pickle=False))
+    except Exception as error:
+        raise RecondreamerError(f"{path}: not a readable feature file ({error})") from None
+    if "reference" not in data or "feature_model_sha256" not in data or "scene_id" not in data:
+        raise RecondreamerError(f"{path}: not a feature file written by 'recondreamer evaluate'")
+    return FeatureFile(
+        path=path,
+        scene_id=str(data["scene_id"]),
+        model_sha256=str(data["feature_model_sha256"]),
+        network=str(data["feature_network"]) if "feature_network" in data else FID_FEATURES_NOTE,
+        reference=data["reference"],
+        renders={key.removeprefix("render:"): value for key, value in data.items() if key.startswith("render:")},
+    )
+
+
+def pooled_scores(files: list[FeatureFile], trajectory: str | None = None) -> dict:
+    """FID and KID of the renders of several evaluations against all their reference frames.
+
+    Renders: every trajectory of every file, or only ``trajectory``; reference: the original
+    frames of each scene, once per scene. FID is taken in the leading principal subspace of the
+    pooled reference (``frechet.pooled_fid_from_features``), KID in the full feature space.
+    """
+    if not files:
+        raise RecondreamerError("no FID feature files given")
+    models = {f.model_sha256 for f in files}
     if len(models) > 1:
-        raise RecondreamerError(f"the feature files come from {len(models)} different feature networks; FID cannot pool them")
+        raise RecondreamerError(f"the feature files come from {len(models)} different feature networks; FID cannot pool them: " + ", ".join(str(f.path) for f in files))
+    references, scenes, renders = [], [], []
+    for f in files:
+        if f.scene_id not in scenes:
+            references.append(f.reference)
+            scenes.append(f.scene_id)
+        if trajectory is None:
+            renders.extend(f.renders.values())
+        elif trajectory in f.renders:
+            renders.append(f.renders[trajectory])
+        else:
+            raise RecondreamerError(f"{f.path}: no features of trajectory {trajectory!r} (has {sorted(f.renders)})")
     if not renders:
         raise RecondreamerError("no rendered-frame features in the given files")
-    pooled = frechet.fid_from_features(np.concatenate(renders), np.concatenate(references))
-    return {**pooled, "num_scenes": len(scenes), "feature_model_sha256": models.pop(), "files": [str(p) for p in feature_files], "fid_feature_network": networks.pop()}
+    rendered, reference = np.concatenate(renders), np.concatenate(references)
+    fid = frechet.pooled_fid_from_features(rendered, reference)
+    kid = frechet.kid_from_features(rendered, reference)
+    return {
+        "fid": fid["fid"],
+        "fid_dim": fid["fid_dim"],
+        "kid": kid["kid"],
+        "kid_std": kid["kid_std"],
+        "kid_subset_size": kid["subset_size"],
+        "kid_subsets": kid["num_subsets"],
+        "num_samples": fid["num_samples"],
+        "feature_dim": fid["feature_dim"],
+        "num_scenes": len(scenes),
+        "trajectory": trajectory or "all",
+        "feature_model_sha256": models.pop(),
+        "fid_feature_network": files[0].network,
+        "files": [str(f.path) for f in files],
+    }
+
+
+def pooled_fid(feature_files: list[str | Path], trajectory: str | None = None) -> dict:
+    """``pooled_scores`` of feature files given by path (the ``fid-pool`` command)."""
+    return pooled_scores([read_feature_file(path) for path in feature_files], trajectory)

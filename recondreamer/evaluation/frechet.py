@@ -100,3 +100,108 @@ def fid_from_features(features1: np.ndarray, features2: np.ndarray) -> dict:  # 
         "feature_dim": stats1.dim,
         "covariance_full_rank": bool(stats1.full_rank and stats2.full_rank),
     }
+
+
+# ---------------------------------------------------------------------------- pooled FID
+
+# The pooled FID keeps at most one feature dimension per this many samples of the smaller set:
+# a Gaussian fit of n samples in d dimensions is only trustworthy when n is several times d.
+MIN_SAMPLES_PER_DIMENSION = 4
+
+
+def reference_basis(reference: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:  # (N,D) -> mean (D,), basis (D,dim)
+    """Mean and the ``dim`` leading principal directions of the reference features.
+
+    Fitted on the reference set only, so every method compared against that reference is
+    projected onto the same axes.
+    """
+    reference = np.asarray(reference, dtype=np.float64)
+    mean = reference.mean(axis=0)
+    centred = reference - mean
+    eigvals, eigvecs = np.linalg.eigh(centred.T @ centred)  # ascending
+    order = np.argsort(eigvals)[::-1][:dim]
+    return mean, eigvecs[:, order]
+
+
+def fid_dimension(num_samples: int, feature_dim: int) -> int:
+    """Feature dimensions the pooled FID keeps for ``num_samples`` samples (the smaller set)."""
+    return int(max(1, min(feature_dim, num_samples // MIN_SAMPLES_PER_DIMENSION)))
+
+
+def pooled_fid_from_features(features: np.ndarray, reference: np.ndarray, dim: int | None = None) -> dict:  # (N1,D), (N2,D)
+    """FID of ``features`` against ``reference`` in the reference's leading principal subspace.
+
+    ``dim`` defaults to :func:`fid_dimension` of the smaller set; with ``dim`` equal to the
+    feature dimension the projection is a rotation and the value equals
+    :func:`fid_from_features` (FID is rotation invariant).
+    """
+    features, reference = np.asarray(features, np.float64), np.asarray(reference, np.float64)
+    if features.ndim != 2 or reference.ndim != 2 or features.shape[1] != reference.shape[1]:
+        raise ValueError(f"features must be (N, D) with the same D, got {features.shape} and {reference.shape}")
+    feature_dim = features.shape[1]
+    if dim is None:
+        dim = fid_dimension(min(len(features), len(reference)), feature_dim)
+    if not 1 <= dim <= feature_dim:
+        raise ValueError(f"FID dimension must lie in 1..{feature_dim}, got {dim}")
+    mean, basis = reference_basis(reference, dim)
+    result = fid_from_features((features - mean) @ basis, (reference - mean) @ basis)
+    return {**result, "feature_dim": feature_dim, "fid_dim": int(dim), "projection": "leading principal directions of the reference features"}
+
+
+# ---------------------------------------------------------------------------- KID
+
+KID_SUBSETS = 100
+KID_MAX_SUBSET = 1000
+
+
+def polynomial_kernel(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # (..., n, D), (..., m, D) -> (..., n, m)
+    """KID's kernel k(x, y) = (x . y / D + 1)^3."""
+    return (x @ np.swapaxes(y, -1, -2) / x.shape[-1] + 1.0) ** 3
+
+
+def mmd2_unbiased(x: np.ndarray, y: np.ndarray) -> np.ndarray:  # (..., m, D), (..., m, D) -> (...)
+    """Unbiased estimate of the squared MMD with :func:`polynomial_kernel` (equal set sizes)."""
+    m = x.shape[-2]
+    kxx, kyy, kxy = polynomial_kernel(x, x), polynomial_kernel(y, y), polynomial_kernel(x, y)
+    diagonal = np.trace(kxx, axis1=-2, axis2=-1) + np.trace(kyy, axis1=-2, axis2=-1)
+    within = (kxx.sum(axis=(-2, -1)) + kyy.sum(axis=(-2, -1)) - diagonal) / (m * (m - 1))
+    return within - 2.0 * kxy.sum(axis=(-2, -1)) / (m * m)
+
+
+def kid_subset_size(num_samples: int) -> int:
+    """Subset size for KID: half the smaller set (so that subsets differ), at least 2, at most 1000."""
+    return int(min(KID_MAX_SUBSET, max(2, num_samples // 2)))
+
+
+def kid_from_features(features1: np.ndarray, features2: np.ndarray, subset_size: int | None = None, num_subsets: int = KID_SUBSETS, seed: int = 0) -> dict:
+    """Kernel Inception Distance (Binkowski et al. 2018) between two feature sets.
+
+    The unbiased squared MMD with the cubic polynomial kernel, averaged over ``num_subsets``
+    random subsets of ``subset_size`` samples drawn without replacement from each set; its
+    standard deviation over the subsets is reported beside it. Unbiased: two sets drawn from
+    one distribution give 0 in expectation (single estimates may be negative).
+    """
+    x, y = np.asarray(features1, np.float64), np.asarray(features2, np.float64)
+    if x.ndim != 2 or y.ndim != 2 or x.shape[1] != y.shape[1]:
+        raise ValueError(f"features must be (N, D) with the same D, got {x.shape} and {y.shape}")
+    smaller = min(len(x), len(y))
+    if smaller < 2:
+        raise ValueError(f"KID needs at least 2 samples per set, got {len(x)} and {len(y)}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("features contain NaN or infinite values")
+    size = kid_subset_size(smaller) if subset_size is None else int(subset_size)
+    if not 2 <= size <= smaller:
+        raise ValueError(f"KID subset size must lie in 2..{smaller}, got {size}")
+    if num_subsets < 1:
+        raise ValueError(f"KID needs at least one subset, got {num_subsets}")
+    rng = np.random.default_rng(seed)
+    # One subset at a time: S kernel matrices of m x m at once would need S times the memory.
+    values = np.array([mmd2_unbiased(x[rng.choice(len(x), size, replace=False)], y[rng.choice(len(y), size, replace=False)]) for _ in range(num_subsets)])
+    return {
+        "kid": float(values.mean()),
+        "kid_std": float(values.std(ddof=1)) if num_subsets > 1 else 0.0,
+        "subset_size": size,
+        "num_subsets": int(num_subsets),
+        "num_samples": [int(len(x)), int(len(y))],
+        "feature_dim": int(x.shape[1]),
+    }

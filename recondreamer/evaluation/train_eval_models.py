@@ -110,7 +110,7 @@ def _gate(kind: str, model: torch.nn.Module, split, images: np.ndarray) -> dict:
             detections, [s.eval_boxes for s in heldout], [s.ignore_boxes for s in heldout], split.width, split.height, DETECTION_SCORE_THRESHOLD
         )
     if kind == "lane_segmenter":
-        return gates.lane_gate(list(inference.segment_lanes(model, images)), [s.lane_mask for s in heldout], [s.occluded for s in heldout])
+        return gates.lane_gate(list(inference.segment_lanes(model, images)), [s.lane_mask for s in heldout], [s.map_lane_mask for s in heldout])
     height, width = images.shape[1:3]
     predictions = []
     with torch.no_grad():

@@ -161,15 +161,10 @@ def _dice_loss(logits: torch.Tensor, target: torch.Tensor, valid: torch.Tensor) 
 
 
 def lane_loss(model: torch.nn.Module, batch: Batch) -> torch.Tensor:
-    """Cross-entropy + dice on the lane head (vehicle pixels ignored), cross-entropy on the area head."""
+    """Cross-entropy + dice on the lane head (visible lane markings), cross-entropy on the area head."""
     lanes = batch.masks([s.lane_mask for s in batch.samples])
-    if all(s.occluded is not None for s in batch.samples):
-        valid = 1 - batch.masks([s.occluded for s in batch.samples])
-    else:
-        valid = torch.ones_like(lanes)
     out = model(batch.images)
-    ce = F.cross_entropy(out["lane_logits"], lanes.masked_fill(valid == 0, -100), ignore_index=-100)
-    loss = ce + _dice_loss(out["lane_logits"], lanes, valid)
+    loss = F.cross_entropy(out["lane_logits"], lanes) + _dice_loss(out["lane_logits"], lanes, torch.ones_like(lanes))
     if all(s.road_mask is not None for s in batch.samples):
         road = batch.masks([s.road_mask for s in batch.samples])
         loss = loss + 0.5 * F.cross_entropy(out["area_logits"], road)

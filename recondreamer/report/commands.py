@@ -23,8 +23,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, help="output directory of the tables")
     p.add_argument("--tables", nargs="+", type=int, default=[1, 2, 3, 4, 5], help="table numbers to build (default 1 2 3 4 5)")
     p.add_argument("--win-rates", type=Path, default=None, help="win-rate JSON of 'recondreamer judge' or 'study-ingest' (table 3)")
+    p.add_argument("--run-config", type=Path, default=None, help="the workflow config of the run (YAML): every table then notes its stand-ins, recipe changes and training budgets")
     add_plan_arguments(p)
     p.set_defaults(func=run_make_tables)
+
+    p = subparsers.add_parser(
+        "findings",
+        help="the paper's claims on this run: our numbers, segments where each holds, bootstrap interval, verdict",
+        description="Read the same metric and feature files as make-tables (and the win rates) and write OUT (Markdown) "
+        "with OUT's .html and .csv siblings: one line per claim of the paper's tables and per metric-validity check.",
+    )
+    p.add_argument("--results", required=True, type=Path, help="results directory of the workflow (holds metrics/)")
+    p.add_argument("--out", required=True, type=Path, help="Markdown file to write (e.g. results/findings.md)")
+    p.add_argument("--win-rates", type=Path, default=None, help="win-rate JSON of 'recondreamer judge' or 'study-ingest' (table 3's claims)")
+    p.add_argument("--run-config", type=Path, default=None, help="the workflow config of the run (YAML), for the stand-in notes")
+    p.add_argument("--seed", type=int, default=0, help="seed of the bootstrap resamples (default 0)")
+    add_plan_arguments(p)
+    p.set_defaults(func=run_findings)
 
     p = subparsers.add_parser(
         "make-plots",
@@ -69,13 +84,43 @@ def _plan(args: argparse.Namespace):
         raise RecondreamerError(f"inconsistent plan options: {error}") from None
 
 
+def _run_notes(path: Path | None) -> dict[int, list[str]]:
+    if path is None:
+        return {}
+    import yaml
+
+    from recondreamer.errors import RecondreamerError
+    from recondreamer.report.notes import run_notes
+
+    try:
+        config = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as error:
+        raise RecondreamerError(f"--run-config {path}: not a readable YAML file ({error})") from None
+    try:
+        return run_notes(config)
+    except (KeyError, TypeError) as error:
+        raise RecondreamerError(f"--run-config {path}: not a workflow config (missing or malformed key {error})") from None
+
+
 def run_make_tables(args: argparse.Namespace) -> int:
     from recondreamer.report.tables import build_tables, write_table
 
-    tables = build_tables(_plan(args), args.results, args.tables, args.win_rates)
+    tables = build_tables(_plan(args), args.results, args.tables, args.win_rates, _run_notes(args.run_config))
     for table in tables:  # all inputs were read before the first write
         paths = write_table(table, args.out)
         log.info("table %d: %d rows -> %s", table.number, len(table.values), ", ".join(str(p) for p in paths))
+    return 0
+
+
+def run_findings(args: argparse.Namespace) -> int:
+    from recondreamer.report.findings import build_findings, write_findings
+
+    plan = _plan(args)
+    evidence = build_findings(plan, args.results, args.win_rates, args.seed)
+    notes = _run_notes(args.run_config).get(1, [])
+    paths = write_findings(evidence, plan, args.out, notes)
+    verdicts = [e.verdict for e in evidence]
+    log.info("%d claims: %d hold, %d do not hold -> %s", len(evidence), verdicts.count("holds"), verdicts.count("does not hold"), ", ".join(str(p) for p in paths))
     return 0
 
 

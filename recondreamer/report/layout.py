@@ -10,6 +10,7 @@ Layout below ``results_dir``::
     runs/<segment>/<run>/                   reconstruction run (train-recon / -recondreamer / -dd4d)
     renders/<segment>/<run>/<trajectory>/   rendered frames 000.png ...
     metrics/<segment>/<run>.json            'recondreamer evaluate' output (all trajectories)
+    metrics/<segment>/<run>.features.npz    its FID features (pooled over segments by the tables)
 """
 
 from __future__ import annotations
@@ -31,6 +32,10 @@ RESTORER_LABELS = {
     "dd2_mask": "DriveDreamer-2+Mask",
 }
 METHOD_KINDS = ("baseline", "dd4d", "recondreamer")
+# ReconDreamer's "restorer" that hands the loop the true novel views (synthetic scenes): the
+# upper bound of what any DriveRestorer could give, and the check that the metrics can rank.
+ORACLE_RESTORER = "truth"
+UPPER_BOUND_LABEL = "Upper bound: true novel views in the loop"
 
 _SHIFT = re.compile(r"^shift@(-?\d+(?:\.\d+)?)$")
 
@@ -108,3 +113,18 @@ def render_dir(results_dir: str | Path, segment: str, run_id: str, trajectory: s
 
 def metrics_file(results_dir: str | Path, segment: str, run_id: str) -> Path:
     return Path(results_dir) / "metrics" / segment / f"{run_id}.json"
+
+
+def features_file(results_dir: str | Path, segment: str, run_id: str) -> Path:
+    return metrics_file(results_dir, segment, run_id).with_suffix(".features.npz")
+
+
+def world_model_path(results_dir: str | Path, arch: str) -> Path:
+    return Path(results_dir) / "models" / f"world_model_{arch}.pt"
+
+
+def restorer_checkpoint_path(config, arch: str) -> str:
+    """The DriveRestorer the ReconDreamer runs of a workflow config use: the configured local
+    file, else the one the workflow trains (with its pixel refiner when restorer.refiner_steps > 0)."""
+    trained = f"restorer_{arch}_refined.pt" if config["restorer"]["refiner_steps"] else f"restorer_{arch}.pt"
+    return config["restorer"]["checkpoints"].get(arch) or str(Path(config["results_dir"]) / "models" / trained)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 from recondreamer.report.layout import (
     BACKBONE_LABELS,
+    ORACLE_RESTORER,
+    UPPER_BOUND_LABEL,
     RESTORER_LABELS,
     Method,
     format_stride,
@@ -31,6 +33,7 @@ class ExperimentPlan:
     main_stride: float = 1.5  # the PDUS stride of "ReconDreamer" everywhere else
     ablation_backbone: str = "street"  # backbone of tables 3-5 and of table 1's ReconDreamer row
     preference_versus: tuple[str, ...] = ("baseline-street", "dd4d-pvg")  # table 3 columns (run ids)
+    oracle: bool = False  # table 1's upper-bound row: ReconDreamer fed the true novel views (synthetic segments only)
 
     def __post_init__(self) -> None:
         if self.main_restorer not in self.restorers:
@@ -60,6 +63,7 @@ class ExperimentPlan:
             main_stride=float(experiment["main_stride"]),
             ablation_backbone=experiment["ablation_backbone"],
             preference_versus=tuple(experiment["preference_versus"]),
+            oracle=config["source"] == "synthetic",
         )
 
     def to_arguments(self) -> list[str]:
@@ -75,6 +79,7 @@ class ExperimentPlan:
             "--main-stride", format_stride(self.main_stride),
             "--ablation-backbone", self.ablation_backbone,
             "--versus", *self.preference_versus,
+            *(["--oracle"] if self.oracle else []),
         ]
 
     # ----------------------------------------------------------------- methods
@@ -87,6 +92,10 @@ class ExperimentPlan:
 
     def recondreamer(self, backbone: str, restorer: str | None = None, stride: float | None = None) -> Method:
         return Method("recondreamer", backbone, restorer or self.main_restorer, self.main_stride if stride is None else stride)
+
+    def upper_bound(self) -> Method:
+        """ReconDreamer on the ablation backbone with the true novel views in place of restored renders."""
+        return Method("recondreamer", self.ablation_backbone, ORACLE_RESTORER, self.main_stride)
 
     @property
     def recondreamer_backbones(self) -> tuple[str, ...]:
@@ -101,6 +110,8 @@ class ExperimentPlan:
         methods += [self.recondreamer(b) for b in self.recondreamer_backbones]
         methods += [self.recondreamer(self.ablation_backbone, restorer=r) for r in self.restorers]
         methods += [self.recondreamer(self.ablation_backbone, stride=s) for s in self.strides]
+        if self.oracle:
+            methods.append(self.upper_bound())
         unique: dict[str, Method] = {}
         for method in methods:
             unique.setdefault(method.run_id, method)
@@ -114,6 +125,8 @@ class ExperimentPlan:
     def table1_rows(self) -> list[tuple[str, Method]]:
         rows = [(BACKBONE_LABELS.get(b, b), self.baseline(b)) for b in self.backbones]
         rows += [(self.recondreamer(b).label, self.recondreamer(b)) for b in self.recondreamer_backbones]
+        if self.oracle:
+            rows.append((UPPER_BOUND_LABEL, self.upper_bound()))
         return rows
 
     def table2_rows(self) -> list[tuple[str, Method]]:
@@ -141,6 +154,7 @@ def add_plan_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--main-stride", type=float, default=1.5, help="PDUS stride of ReconDreamer outside table 5 (default 1.5)")
     parser.add_argument("--ablation-backbone", default="street", help="backbone of tables 3-5 (default street)")
     parser.add_argument("--versus", nargs="+", default=["baseline-street", "dd4d-pvg"], help="table 3 columns: run ids ReconDreamer is compared with")
+    parser.add_argument("--oracle", action="store_true", help="table 1 has the upper-bound row: ReconDreamer trained on the true novel views (synthetic segments)")
 
 
 def plan_from_arguments(args: argparse.Namespace) -> ExperimentPlan:
@@ -155,6 +169,7 @@ def plan_from_arguments(args: argparse.Namespace) -> ExperimentPlan:
         main_stride=args.main_stride,
         ablation_backbone=args.ablation_backbone,
         preference_versus=tuple(args.versus),
+        oracle=args.oracle,
     )
 
 

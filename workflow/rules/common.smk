@@ -6,7 +6,7 @@ import os
 
 from snakemake.exceptions import WorkflowError
 
-from recondreamer.report.layout import metrics_file, render_dir, run_dir
+from recondreamer.report.layout import features_file, metrics_file, render_dir, restorer_checkpoint_path, run_dir
 from recondreamer.report.plan import ExperimentPlan
 
 RESULTS = config["results_dir"]
@@ -154,6 +154,18 @@ def all_metrics_files():
     return [str(metrics_file(RESULTS, s, m.run_id)) for s in SEGMENTS for m in RUNS]
 
 
+def all_features_files():
+    return [str(features_file(RESULTS, s, m.run_id)) for s in SEGMENTS for m in RUNS]
+
+
+def note_model_files():
+    """The model files the tables' notes describe (restorers, world models, autoencoder, evaluation models)."""
+    files = [restorer_checkpoint(arch) for arch in PLAN.restorers]
+    files += [results("models", f"world_model_{arch}.pt") for arch in sorted({WORLD_MODEL_OF[r] for r in PLAN.restorers}) if not config["restorer"]["checkpoints"].get(arch)]
+    files += [results("models", "autoencoder.pt")]
+    return sorted(set(files)) + eval_model_files()
+
+
 def eval_model_files():
     """Trained evaluation models that the evaluation uses (those not replaced by a configured local file)."""
     trained = {"detector": "vehicle_detector.pt", "lane_model": "lane_segmenter.pt", "fid_model": "fid_features.pt"}
@@ -161,10 +173,17 @@ def eval_model_files():
 
 
 def restorer_checkpoint(arch):
-    """The DriveRestorer the ReconDreamer runs use: the configured local file, else the one trained
-    here (with its pixel refiner when restorer.refiner_steps > 0)."""
-    trained = f"restorer_{arch}_refined.pt" if config["restorer"]["refiner_steps"] else f"restorer_{arch}.pt"
-    return config["restorer"]["checkpoints"].get(arch) or results("models", trained)
+    return restorer_checkpoint_path(config, arch)
+
+
+def write_run_config(values, path, log_path):
+    import yaml
+
+    from recondreamer.io import write_text_atomic
+
+    write_text_atomic(path, yaml.safe_dump(dict(values), sort_keys=False))
+    with open(log_path, "w") as handle:
+        handle.write(f"wrote {path}\n")
 
 
 def win_rates_file():
@@ -183,7 +202,7 @@ def plan_arguments():
 def final_outputs():
     outputs = [results("tables", f"table{n}.{suffix}") for n in TABLES for suffix in ("csv", "md", "tex", "html")]
     outputs += plot_files()
-    outputs += [results("study"), results("benchmark_summary.html")]
+    outputs += [results("findings.md"), results("findings.html"), results("study"), results("benchmark_summary.html")]
     return outputs
 
 

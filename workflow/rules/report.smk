@@ -1,9 +1,28 @@
-# The paper's five tables, the figures and the time per rule, all tagged for the Snakemake report.
+# The paper's five tables, the findings page, the figures and the time per rule, all tagged for
+# the Snakemake report.
+
+rule run_config:
+    # The config this run was made with, for the tables' notes (stand-ins, recipe, budgets); the
+    # config is a param, so a changed config rewrites it and everything that reads it.
+    output:
+        results("run_config.yaml"),
+    params:
+        config=config,
+    log:
+        log_file("run_config", "all"),
+    benchmark:
+        benchmark_file("run_config", "all")
+    run:
+        write_run_config(params.config, output[0], log[0])
+
 
 rule make_tables:
     input:
         metrics=all_metrics_files(),
+        features=all_features_files(),
         win_rates=[path for path in [win_rates_file()] if path],
+        run_config=results("run_config.yaml"),
+        models=note_model_files(),
     output:
         table_outputs(),
     params:
@@ -18,7 +37,32 @@ rule make_tables:
         benchmark_file("make_tables", "all")
     shell:
         "recondreamer make-tables --results {params.results} --out {params.out} --tables {params.tables} "
-        "{params.win_rates} {params.plan} > {log} 2>&1"
+        "{params.win_rates} --run-config {input.run_config} {params.plan} > {log} 2>&1"
+
+
+rule findings:
+    input:
+        metrics=all_metrics_files(),
+        features=all_features_files(),
+        win_rates=[path for path in [win_rates_file()] if path],
+        run_config=results("run_config.yaml"),
+        models=note_model_files(),
+    output:
+        markdown=results("findings.md"),
+        html=report(results("findings.html"), caption="../report/findings.rst", category="0. Findings", labels={"page": "findings"}),
+        csv=results("findings.csv"),
+    params:
+        results=lambda wildcards, input: parent(input.metrics[0], 3),
+        win_rates=lambda wildcards, input: option("--win-rates", input.win_rates[0] if input.win_rates else None),
+        plan=plan_arguments(),
+    threads: config["threads"]["evaluate"]
+    log:
+        log_file("findings", "all"),
+    benchmark:
+        benchmark_file("findings", "all")
+    shell:
+        "recondreamer findings --results {params.results} --out {output.markdown} {params.win_rates} "
+        "--run-config {input.run_config} {params.plan} > {log} 2>&1"
 
 
 rule make_plots:
@@ -67,6 +111,7 @@ rule pdus_figure:
 rule benchmark_summary:
     input:
         rules.make_tables.output,
+        rules.findings.output,
         rules.make_plots.output,
         [results("plots", f"pdus_{s}.png") for s in SEGMENTS],
         results("study"),

@@ -1,0 +1,176 @@
+"""What a run's tables must say about themselves: the stand-ins, the recipe, the budgets.
+
+The paper's tables name Stable Diffusion, SVD, DriveDreamer-2, YOLO11, TwinLiteNet and
+Inception; this project trains small models of its own in their place. ``run_notes`` reads the
+workflow config of the run and the model files it used, and returns the notes every table
+carries: what each stand-in is (architecture, parameters, training), which changes to the
+paper's DriveRestorer recipe are on, and the training budget of every method compared. Nothing
+here is typed by hand: parameter counts come from the weight files, budgets from the config.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from recondreamer.report.layout import BACKBONE_LABELS, RESTORER_LABELS, format_stride, restorer_checkpoint_path, world_model_path
+
+EVAL_MODEL_FILES = {"detector": "vehicle_detector.pt", "lane_model": "lane_segmenter.pt", "fid_model": "fid_features.pt"}
+WORLD_MODEL_OF = {"sd": "sd", "svd": "svd", "dd2": "dd2", "dd2_mask": "dd2"}  # dd2_mask fine-tunes the dd2 world model
+
+
+@dataclass(frozen=True)
+class WeightFile:
+    path: Path
+    payload: dict
+
+    @property
+    def parameters(self) -> int:
+        return state_parameters(self.payload.get("state", {}))
+
+
+def state_parameters(state: Mapping) -> int:
+    """Number of parameters in a state dict (buffers such as batch-norm statistics excluded)."""
+    excluded = ("running_mean", "running_var", "num_batches_tracked")
+    return int(sum(math.prod(value.shape) for key, value in state.items() if hasattr(value, "shape") and not key.endswith(excluded)))
+
+
+def _millions(count: int) -> str:
+    return f"{count / 1e6:.2f} M"
+
+
+def _load(path: Path) -> WeightFile | None:
+    import torch
+
+    if not path.is_file():
+        return None
+    payload = torch.load(path, map_location="cpu", weights_only=False)
+    return WeightFile(path, payload if isinstance(payload, dict) else {})
+
+
+def pdus_reach(stride: float, iterations: int, update_every: int | None, max_offset: float | None) -> list[float]:
+    """The offsets (metres) of a PDUS run's updates, as train-recondreamer schedules them."""
+    from recondreamer.methods.pdus import PdusSchedule
+
+    schedule = PdusSchedule.for_iterations(stride, iterations, update_every, 6.0 if max_offset is None else max_offset)
+    return schedule.offsets()
+
+
+def recon_iterations(config: Mapping) -> int:
+    from recondreamer.recon.config import make_config
+
+    recon = config["recon"]
+    return int(recon["iterations"]) if recon.get("iterations") else make_config("street", recon["preset"]).iterations
+
+
+def _restorer_recipe(payload: dict) -> list[str]:
+    """The changes to the paper's DriveRestorer recipe that a restorer checkpoint has on."""
+    config = payload.get("config", {})
+    diffusion, train, restore = config.get("diffusion", {}), config.get("train", {}), config.get("restore", {})
+    changes = []
+    if diffusion.get("target_space") == "residual":
+        changes.append("residual target (the restorer generates the clean - degraded latent difference)")
+    if diffusion.get("prediction") == "v":
+        changes.append("v-prediction")
+    if train.get("timestep_power", 1.0) != 1.0:
+        changes.append(f"training timesteps weighted towards noisy steps (density ~ t^{train['timestep_power'] - 1:g})")
+    if train.get("ema_decay", 0.0):
+        changes.append(f"weight averaging (EMA {train['ema_decay']:g})")
+    if train.get("pixel_loss_weight", 0.0):
+        changes.append(f"image-space loss (weight {train['pixel_loss_weight']:g})")
+    if restore.get("residual_decoding"):
+        changes.append("residual decoding (output = render + decoded change)")
+    if restore.get("samples", 1) > 1:
+        changes.append(f"{restore['samples']} noise draws averaged per window")
+    if restore.get("sample_steps"):
+        changes.append(f"{restore['sample_steps']}-step DDIM sampling at strength {restore.get('strength', 1.0):g}")
+    if payload.get("refiner"):
+        changes.append("a pixel refiner on the restorer's output")
+    return changes
+
+
+def run_notes(config: Mapping) -> dict[int, list[str]]:
+    """Notes per table number for the run described by a validated workflow config."""
+    results = Path(config["results_dir"])
+    experiment = config["experiment"]
+    lines_models: list[str] = []
+
+    # DriveRestorer backbones (and the world models they start from)
+    restorer_budget = []
+    recipes: dict[str, list[str]] = {}
+    for arch in experiment["restorer_backbones"]:
+        path = Path(restorer_checkpoint_path(config, arch))
+        restorer = _load(path)
+        world = _load(world_model_path(results, WORLD_MODEL_OF[arch]))
+        label = RESTORER_LABELS.get(arch, arch)
+        if restorer is None:
+            lines_models.append(f"{label}: restorer file {path} not found (notes incomplete).")
+            continue
+        steps = restorer.payload.get("metrics", {}).get("total_steps") or restorer.payload.get("config", {}).get("train", {}).get("steps")
+        scenes = restorer.payload.get("training_scenes", [])
+        own = config["restorer"]["checkpoints"].get(arch)
+        world_text = (
+            f"pretrained {world.payload.get('config', {}).get('train', {}).get('steps', '?')} steps as a world model on the synthetic corpus"
+            if world is not None else "world model not in this run"
+        )
+        origin = f"the user's file {own}" if own else f"{world_text}, then fine-tuned {steps} steps as DriveRestorer on pairs of {len(scenes)} scene(s)"
+        lines_models.append(f"{label}: a stand-in, a {_millions(restorer.parameters)}-parameter latent UNet ({origin}).")
+        restorer_budget.append(f"{arch} {steps}")
+        recipes[arch] = _restorer_recipe(restorer.payload)
+
+    autoencoder = _load(results / "models" / "autoencoder.pt")
+    if autoencoder is not None:
+        lines_models.append(
+            f"Latent autoencoder (stand-in for Stable Diffusion's VAE): {_millions(autoencoder.parameters)} parameters, "
+            f"{autoencoder.payload.get('config', {}).get('steps', config['pretrain'].get('autoencoder_steps'))} steps on the corpus."
+        )
+
+    eval_descriptions = {
+        "detector": ("NTA-IoU detector", "YOLO11x", "a CenterNet-style CNN"),
+        "lane_model": ("NTL-IoU lane segmenter", "TwinLiteNet", "a TwinLiteNet-style ESPNet CNN trained on the rendered lane markings"),
+        "fid_model": ("FID/KID features", "InceptionV3", "the pooled last stage of a CNN trained for semantic segmentation"),
+    }
+    for key, (role, paper_name, what) in eval_descriptions.items():
+        own = config["eval_models"].get(key)
+        path = Path(own) if own else results / "eval_models" / EVAL_MODEL_FILES[key]
+        if own:
+            lines_models.append(f"{role}: the user's file {own} in place of {paper_name}.")
+            continue
+        model = _load(path)
+        count = "" if model is None else f"{_millions(model.parameters)}-parameter "
+        lines_models.append(f"{role}: a stand-in for {paper_name}, {count}{what}, trained on the synthetic corpus.")
+
+    iterations = recon_iterations(config)
+    pair_sources = []
+    if config["restorer"]["pair_segment_backbones"]:
+        pair_sources.append(
+            f"the evaluation segments' baseline runs ({', '.join(BACKBONE_LABELS.get(b, b) for b in config['restorer']['pair_segment_backbones'])}) "
+            "along their recorded trajectories"
+        )
+    if config["restorer"]["pair_corpus_scenes"]:
+        pair_sources.append(f"{config['restorer']['pair_corpus_scenes']} corpus scene reconstruction(s)")
+    budgets = [
+        f"Training budgets: every reconstruction (baseline, DriveDreamer4D, ReconDreamer) {iterations} iterations; "
+        f"DriveRestorer fine-tuning steps: {', '.join(restorer_budget) or 'n/a'}; restoration pairs from {' and '.join(pair_sources) or 'nothing'} "
+        "(under-trained renders with their ground truth, never novel-view truth).",
+    ]
+    recipe_lines = []
+    distinct = {tuple(v) for v in recipes.values()}
+    if len(distinct) == 1:
+        changes = next(iter(distinct))
+        recipe_lines.append("Changes to the paper's DriveRestorer recipe on in this run: " + ("; ".join(changes) if changes else "none") + ".")
+    else:
+        for arch, changes in recipes.items():
+            recipe_lines.append(f"Changes to the paper's recipe ({RESTORER_LABELS.get(arch, arch)}): " + ("; ".join(changes) if changes else "none") + ".")
+
+    common = ["Stand-ins (small models trained here, named with the paper's models they replace): " + " ".join(lines_models), *recipe_lines, *budgets]
+    methods = config.get("methods", {})
+    stride_lines = []
+    for stride in experiment["strides"]:
+        offsets = pdus_reach(float(stride), iterations, methods.get("update_every"), methods.get("max_offset"))
+        reach = max(offsets) if offsets else 0.0
+        stride_lines.append(f"{format_stride(float(stride))} m: {len(offsets)} update(s) at {', '.join(f'{o:g}' for o in offsets)} m, reach {reach:g} m")
+    table5 = common + ["PDUS updates and reach per stride: " + "; ".join(stride_lines) + "."]
+    return {1: common, 2: common, 3: common, 4: common, 5: table5}
