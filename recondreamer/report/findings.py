@@ -163,7 +163,7 @@ class MetricData:
         n = len(self.segments)
         self.mean_resamples = rng.integers(0, n, size=(BOOTSTRAP_SEGMENT_MEANS, n))
         self.pooled_resamples = rng.integers(0, n, size=(BOOTSTRAP_POOLED, n))
-        self._pooled_cache: dict[tuple[str, str], np.ndarray] = {}
+        self._pooled_cache: dict[tuple[str, str, str], np.ndarray] = {}
 
     def _read_diagnostics(self, results_dir, methods) -> dict:
         """Per-segment FID and KID of the metrics files (only for k/n)."""
@@ -202,27 +202,29 @@ class MetricData:
             rows.append(float(np.nanmean(per)) if not all(math.isnan(v) for v in per) else math.nan)
         return np.array(rows)
 
-    def pooled(self, run_id: str, metric: str, column: str, indices: np.ndarray | None) -> float:
-        """The table's pooled FID/KID (x1000) of ``run_id`` on the segments ``indices`` (None = all)."""
+    def _pooled_trajectory(self, run_id: str, metric: str, trajectory: str, indices) -> float:
         from recondreamer.evaluation import frechet
 
-        trajectories = self.plan.trajectories if column == AVERAGE else [column]
         chosen = range(len(self.segments)) if indices is None else indices
-        values = []
-        for trajectory in trajectories:
-            renders = np.concatenate([self.features[(run_id, self.segments[i])].renders[trajectory] for i in chosen])
-            reference = np.concatenate([self.features[(run_id, self.segments[i])].reference for i in chosen])
-            if metric == "fid":
-                values.append(frechet.pooled_fid_from_features(renders, reference)["fid"])
-            else:
-                subsets = frechet.KID_SUBSETS if indices is None else POOLED_KID_SUBSETS
-                values.append(1000.0 * frechet.kid_from_features(renders, reference, num_subsets=subsets)["kid"])
-        return float(np.mean(values))
+        renders = np.concatenate([self.features[(run_id, self.segments[i])].renders[trajectory] for i in chosen])
+        reference = np.concatenate([self.features[(run_id, self.segments[i])].reference for i in chosen])
+        if metric == "fid":
+            return frechet.pooled_fid_from_features(renders, reference)["fid"]
+        subsets = frechet.KID_SUBSETS if indices is None else POOLED_KID_SUBSETS
+        return 1000.0 * frechet.kid_from_features(renders, reference, num_subsets=subsets)["kid"]
+
+    def pooled(self, run_id: str, metric: str, column: str) -> float:
+        """The table's pooled FID or KID x1000 of ``run_id`` (Average: mean over the trajectories)."""
+        trajectories = self.plan.trajectories if column == AVERAGE else [column]
+        return float(np.mean([self._pooled_trajectory(run_id, metric, t, None) for t in trajectories]))
 
     def pooled_resampled(self, run_id: str, metric: str, column: str) -> np.ndarray:  # (B,)
+        """The pooled value on each segment resample (the same resamples for every run)."""
+        if column == AVERAGE:
+            return np.mean([self.pooled_resampled(run_id, metric, t) for t in self.plan.trajectories], axis=0)
         key = (run_id, metric, column)
         if key not in self._pooled_cache:
-            self._pooled_cache[key] = np.array([self.pooled(run_id, metric, column, idx) for idx in self.pooled_resamples])
+            self._pooled_cache[key] = np.array([self._pooled_trajectory(run_id, metric, column, idx) for idx in self.pooled_resamples])
         return self._pooled_cache[key]
 
 
@@ -248,7 +250,7 @@ def metric_evidence(claim: Claim, data: MetricData) -> Evidence:
     per_segment = sign * (a_seg - b_seg)
     holds_in = int(np.sum(per_segment[both] > 0))
     if spec.pooled:
-        a, b = data.pooled(claim.better.run_id, claim.metric, claim.column, None), data.pooled(claim.worse.run_id, claim.metric, claim.column, None)
+        a, b = data.pooled(claim.better.run_id, claim.metric, claim.column), data.pooled(claim.worse.run_id, claim.metric, claim.column)
         samples = sign * (data.pooled_resampled(claim.better.run_id, claim.metric, claim.column) - data.pooled_resampled(claim.worse.run_id, claim.metric, claim.column))
         improvement = sign * (a - b)
     else:
