@@ -32,7 +32,9 @@ def run(tmp_path):
         _save(models / f"world_model_{arch}.pt", {"w": torch.zeros(10)}, config={"train": {"steps": 500}})
     _save(models / "autoencoder.pt", {"w": torch.zeros(50)}, config={"steps": 2000})
     for name in ("vehicle_detector.pt", "lane_segmenter.pt", "fid_features.pt"):
-        _save(tmp_path / "eval_models" / name, {"w": torch.zeros(4000), "bn.running_mean": torch.zeros(9)})
+        path = tmp_path / "eval_models" / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        torch.save({"state_dict": {"w": torch.zeros(40000), "bn.running_mean": torch.zeros(9)}, "training": {"run": {"steps": 1000}, "train_scenes": ["a", "b"]}}, path)
     return _config(tmp_path)
 
 
@@ -40,7 +42,8 @@ def test_every_stand_in_is_named_with_its_size(run):
     notes = run_notes(run)
     text = " ".join(notes[1])
     for name in ("Stable Diffusion: a stand-in, a 0.00 M-parameter latent UNet", "Stable Video Diffusion: a stand-in", "DriveDreamer-2: a stand-in",
-                 "DriveDreamer-2+Mask: a stand-in", "stand-in for YOLO11x", "stand-in for TwinLiteNet", "stand-in for InceptionV3", "Stable Diffusion's VAE"):
+                 "DriveDreamer-2+Mask: a stand-in", "NTA-IoU detector: a stand-in for YOLO11x, a CenterNet-style CNN of 0.04 M parameters, trained 1000 steps on 2",
+                 "stand-in for TwinLiteNet", "stand-in for InceptionV3", "Stable Diffusion's VAE"):
         assert name in text, name
     assert "fine-tuned 500 steps as DriveRestorer on pairs of 12 scene(s)" in text
     assert "residual target" in text and "v-prediction" in text and "4 noise draws averaged per window" in text and "t^2" in text

@@ -32,7 +32,7 @@ import pandas as pd
 from recondreamer.report import paper_values
 from recondreamer.report.layout import RESTORER_LABELS, UPPER_BOUND_LABEL, Method, features_file, format_stride, trajectory_label
 from recondreamer.report.plan import ExperimentPlan
-from recondreamer.report.tables import METRIC_BY_KEY, ReportInputError, read_metrics
+from recondreamer.report.tables import METRIC_BY_KEY, ReportInputError, format_value, read_metrics
 
 AVERAGE = paper_values.AVERAGE
 BOOTSTRAP_SEGMENT_MEANS = 10000  # resamples for per-segment metrics (cheap)
@@ -235,10 +235,7 @@ def _interval(samples: np.ndarray) -> tuple[float, float]:
 
 
 def _fmt(value: float | None, metric: str) -> str:
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "n/a"
-    decimals = 1 if metric == "win_rate" else METRIC_BY_KEY[metric].decimals
-    return f"{value:.{decimals}f}"
+    return format_value(value, 1 if metric == "win_rate" else METRIC_BY_KEY[metric].decimals)
 
 
 def metric_evidence(claim: Claim, data: MetricData) -> Evidence:
@@ -265,7 +262,7 @@ def metric_evidence(claim: Claim, data: MetricData) -> Evidence:
         pa = paper_values.paper_value(claim.paper_table, claim.better.run_id, claim.column, claim.metric)
         pb = paper_values.paper_value(claim.paper_table, claim.worse.run_id, claim.column, claim.metric)
         if pa is not None and pb is not None:
-            paper = f"{pa:.{spec.decimals}f} vs {pb:.{spec.decimals}f}"
+            paper = f"{format_value(pa, spec.decimals)} vs {format_value(pb, spec.decimals)}"
     return Evidence(claim, paper, f"{_fmt(a, claim.metric)} vs {_fmt(b, claim.metric)}", improvement, holds_in, int(both.sum()), low, high)
 
 

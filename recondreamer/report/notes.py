@@ -28,7 +28,8 @@ class WeightFile:
 
     @property
     def parameters(self) -> int:
-        return state_parameters(self.payload.get("state", {}))
+        # Generative checkpoints keep their weights under "state", evaluation model files under "state_dict".
+        return state_parameters(self.payload.get("state", self.payload.get("state_dict", {})))
 
 
 def state_parameters(state: Mapping) -> int:
@@ -122,15 +123,17 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
 
     autoencoder = _load(results / "models" / "autoencoder.pt")
     if autoencoder is not None:
+        psnr = autoencoder.payload.get("metrics", {}).get("heldout_psnr")
         lines_models.append(
             f"Latent autoencoder (stand-in for Stable Diffusion's VAE): {_millions(autoencoder.parameters)} parameters, "
-            f"{autoencoder.payload.get('config', {}).get('steps', config['pretrain'].get('autoencoder_steps'))} steps on the corpus."
+            f"{autoencoder.payload.get('config', {}).get('steps', '?')} steps on the corpus"
+            + (f", {psnr:.2f} dB on held-out frames." if isinstance(psnr, float) else ".")
         )
 
     eval_descriptions = {
         "detector": ("NTA-IoU detector", "YOLO11x", "a CenterNet-style CNN"),
-        "lane_model": ("NTL-IoU lane segmenter", "TwinLiteNet", "a TwinLiteNet-style ESPNet CNN trained on the rendered lane markings"),
-        "fid_model": ("FID/KID features", "InceptionV3", "the pooled last stage of a CNN trained for semantic segmentation"),
+        "lane_model": ("NTL-IoU lane segmenter", "TwinLiteNet", "a TwinLiteNet-style ESPNet CNN segmenting the rendered lane markings"),
+        "fid_model": ("FID/KID features", "InceptionV3", "the pooled last stage of a semantic-segmentation CNN"),
     }
     for key, (role, paper_name, what) in eval_descriptions.items():
         own = config["eval_models"].get(key)
@@ -139,8 +142,15 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
             lines_models.append(f"{role}: the user's file {own} in place of {paper_name}.")
             continue
         model = _load(path)
-        count = "" if model is None else f"{_millions(model.parameters)}-parameter "
-        lines_models.append(f"{role}: a stand-in for {paper_name}, {count}{what}, trained on the synthetic corpus.")
+        if model is None:
+            lines_models.append(f"{role}: a stand-in for {paper_name} ({what}); file {path} not found (notes incomplete).")
+            continue
+        run = model.payload.get("training", {}).get("run", {})
+        scenes = len(model.payload.get("training", {}).get("train_scenes", []))
+        lines_models.append(
+            f"{role}: a stand-in for {paper_name}, {what} of {_millions(model.parameters)} parameters, "
+            f"trained {run.get('steps', '?')} steps on {scenes} synthetic corpus scene(s)."
+        )
 
     iterations = recon_iterations(config)
     pair_sources = []

@@ -368,7 +368,7 @@ def build_table3(plan: ExperimentPlan, win_rates_file: str | Path, notes: Sequen
 # ---------------------------------------------------------------------------- writing
 
 
-def _fmt(value: float, decimals: int) -> str:
+def format_value(value: float | None, decimals: int) -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "n/a"
     if value != 0 and abs(value) < 10.0 ** (1 - decimals):
@@ -397,7 +397,7 @@ def _cells(table: Table, frame: pd.DataFrame, percent: bool) -> list[list[str]]:
     for label, row in frame.iterrows():
         cells = []
         for (group, metric), value in row.items():
-            text = _fmt(value, 2 if percent else table.decimals.get(metric, 3))
+            text = format_value(value, 2 if percent else table.decimals.get(metric, 3))
             cells.append(f"{'+' if percent and not math.isnan(value) and value > 0 else ''}{text}{'%' if percent and text != 'n/a' else ''}")
         rows.append([str(label), *cells])
     return rows
