@@ -127,7 +127,19 @@ def paper_claims(plan: ExperimentPlan, with_win_rates: bool) -> list[Claim]:
         if abs(stride - plan.main_stride) > 1e-9:
             add(5, plan.recondreamer(plan.ablation_backbone), plan.recondreamer(plan.ablation_backbone, stride=stride), PAPER_METRICS, [AVERAGE],
                 better_label=f"stride {format_stride(plan.main_stride)} m", worse_label=f"stride {format_stride(stride)} m")
-    return claims
+    return [claim for claim in claims if _paper_shows(claim)]
+
+
+def _paper_shows(claim: Claim) -> bool:
+    """False where the paper's own numbers show the opposite order (then the paper does not claim
+    it: e.g. its table 2 has DriveDreamer4D ahead of ReconDreamer on S3Gaussian's average NTL-IoU)."""
+    if claim.metric not in PAPER_METRICS or claim.paper_table is None:
+        return True
+    better = paper_values.paper_value(claim.paper_table, claim.better.run_id, claim.column, claim.metric)
+    worse = paper_values.paper_value(claim.paper_table, claim.worse.run_id, claim.column, claim.metric)
+    if better is None or worse is None:
+        return True
+    return better < worse if claim.metric == "fid" else better > worse
 
 
 def validity_claims(plan: ExperimentPlan, metrics: Sequence[str]) -> list[Claim]:
