@@ -14,7 +14,9 @@ is not a row of the paper's table 2, but the rules are generic over the backbone
 simply asks for it.
 
 Then reads the metric files written by ``recondreamer evaluate`` (NTA-IoU, NTL-IoU, FID, and
-PSNR/SSIM against the true novel views of the synthetic segments) and prints, per backbone,
+PSNR/SSIM against the true novel views of the synthetic segments; FID here is the mean of the
+per-segment FIDs, a diagnostic: the tables and ``recondreamer findings`` pool the segments and
+add KID) and prints, per backbone,
 the paper-style comparison (means over segments per trajectory, and their average) and the
 verdicts of the paper's finding at shift@6: ReconDreamer better than its baseline and than
 DriveDreamer4D per metric, stride 1.5 better than stride 6, with the number of segments where
@@ -52,7 +54,10 @@ from recondreamer.report.layout import (
     trajectory_label,
 )
 from recondreamer.report.plan import segment_names
-from recondreamer.report.tables import METRICS, ReportInputError, read_run_metrics
+from recondreamer.report.tables import METRICS as TABLE_METRICS
+from recondreamer.report.tables import ReportInputError, read_run_metrics
+
+METRICS = tuple(m for m in TABLE_METRICS if m.key != "kid")  # per-segment values, FID as the segment's diagnostic
 
 REPO = Path(__file__).resolve().parents[1]
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
@@ -131,7 +136,7 @@ def read_values(results_dir: str, segments: list[str], runs: list[GateRun]) -> d
         for run in runs:
             path = metrics_file(results_dir, segment, run.method.run_id)
             if path.is_file():
-                values[(segment, run.method.run_id)] = read_run_metrics(path, TRAJECTORIES)
+                values[(segment, run.method.run_id)] = read_run_metrics(path, TRAJECTORIES, METRICS)
     return values
 
 

@@ -103,3 +103,29 @@ def test_batch_crops_and_flips_boxes_and_masks_alike():
             continue
         ys, xs = np.nonzero(cropped)
         assert boxes[0] == pytest.approx([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1])
+
+
+def test_lane_target_is_the_visible_marking_and_the_map_mask_is_kept_for_the_gate(corpus):
+    from recondreamer.evaluation.lanes import lane_mask
+    from recondreamer.scene import load_scene
+
+    split = load_corpus(corpus, frame_stride=3, holdout_scenes=1)
+    sample = split.train[0]
+    scene = next(scene for scene in map(load_scene, sorted(corpus.iterdir())) if scene.scene_id == sample.scene_id)
+    marking = scene.semantic_classes.index("lane_marking")
+    assert np.array_equal(sample.lane_mask, sample.semantics == marking)
+    cams = scene.trajectory(sample.trajectory)
+    assert np.array_equal(sample.map_lane_mask, lane_mask(scene.map_polylines, scene.K, cams[sample.t], scene.width, scene.height))
+    assert not np.array_equal(sample.lane_mask, sample.map_lane_mask)
+
+
+def test_fid_features_pool_three_scales():
+    from recondreamer.evaluation.models import FeatureNetConfig
+
+    config = FeatureNetConfig(input_width=32, input_height=32, widths=(4, 6, 8, 10))
+    model = config.build().eval()
+    images = torch.rand(3, 3, 32, 32) * 255
+    features = model.features(images)
+    assert features.shape == (3, config.feature_dim) == (3, 6 + 8 + 10)
+    x4, x8, x16 = model.encode(images)
+    assert torch.allclose(features, torch.cat([x4.mean((2, 3)), x8.mean((2, 3)), x16.mean((2, 3))], dim=1))

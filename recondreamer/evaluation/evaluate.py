@@ -17,8 +17,8 @@ from recondreamer.evaluation.renders import load_render_frames
 log = logging.getLogger(__name__)
 
 FID_FEATURES_NOTE = (
-    "FID uses the project's corpus-trained feature network (semantic-segmentation encoder, global average pool "
-    "of its last stage), not pytorch-fid's InceptionV3: values compare runs of this project only, never published FIDs"
+    "FID uses the project's corpus-trained feature network (semantic-segmentation encoder, global average pools "
+    "of its stages at strides 4, 8 and 16), not pytorch-fid's InceptionV3: values compare runs of this project only, never published FIDs"
 )
 
 

@@ -133,7 +133,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
     eval_descriptions = {
         "detector": ("NTA-IoU detector", "YOLO11x", "a CenterNet-style CNN"),
         "lane_model": ("NTL-IoU lane segmenter", "TwinLiteNet", "a TwinLiteNet-style ESPNet CNN segmenting the rendered lane markings"),
-        "fid_model": ("FID/KID features", "InceptionV3", "the pooled last stage of a semantic-segmentation CNN"),
+        "fid_model": ("FID/KID features", "InceptionV3", "multi-scale pooled stages of a semantic-segmentation CNN"),
     }
     for key, (role, paper_name, what) in eval_descriptions.items():
         own = config["eval_models"].get(key)
