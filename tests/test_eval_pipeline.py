@@ -132,7 +132,7 @@ def test_model_output_shapes():
     seg = LaneSegmenterConfig(input_width=96, input_height=64).build()(images)
     assert seg["lane_logits"].shape == (2, 2, 64, 96) and seg["area_logits"].shape == (2, 2, 64, 96)
     fid = FeatureNetConfig(input_width=96, input_height=64).build()
-    assert fid(images).shape == (2, 9, 64, 96) and fid.features(images).shape == (2, 128)
+    assert fid(images).shape == (2, 9, 64, 96) and fid.features(images).shape == (2, 48 + 96 + 128)
 
 
 def test_average_precision_with_ignored_vehicles():
