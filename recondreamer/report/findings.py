@@ -20,7 +20,6 @@ from people (no per-segment decisions) use an exact binomial interval over the a
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ import pandas as pd
 from recondreamer.report import paper_values
 from recondreamer.report.layout import RESTORER_LABELS, UPPER_BOUND_LABEL, Method, features_file, format_stride, trajectory_label
 from recondreamer.report.plan import ExperimentPlan
-from recondreamer.report.tables import METRIC_BY_KEY, ReportInputError, format_value, read_metrics
+from recondreamer.report.tables import METRIC_BY_KEY, METRICS, ReportInputError, format_value, read_metrics, read_win_rates
 
 AVERAGE = paper_values.AVERAGE
 BOOTSTRAP_SEGMENT_MEANS = 10000  # resamples for per-segment metrics (cheap)
@@ -167,30 +166,15 @@ class MetricData:
     def __init__(self, plan: ExperimentPlan, results_dir: str | Path, methods: Sequence[Method], seed: int = 0):
         self.plan = plan
         self.segments = list(plan.segments)
-        long = read_metrics(results_dir, self.segments, methods, plan.trajectories)
+        # Every metric file once: per-segment values, FID and KID as the segments' diagnostics (for k/n).
+        long = read_metrics(results_dir, self.segments, methods, plan.trajectories, METRICS)
         self.values = {(r.run, r.trajectory, r.metric, r.segment): r.value for r in long.itertuples()}
-        self.diagnostics = self._read_diagnostics(results_dir, methods)
         self.features = self._read_features(results_dir, methods)
         rng = np.random.default_rng(seed)
         n = len(self.segments)
         self.mean_resamples = rng.integers(0, n, size=(BOOTSTRAP_SEGMENT_MEANS, n))
         self.pooled_resamples = rng.integers(0, n, size=(BOOTSTRAP_POOLED, n))
         self._pooled_cache: dict[tuple[str, str, str], np.ndarray] = {}
-
-    def _read_diagnostics(self, results_dir, methods) -> dict:
-        """Per-segment FID and KID of the metrics files (only for k/n)."""
-        from recondreamer.report.layout import metrics_file
-
-        values = {}
-        for method in methods:
-            for segment in self.segments:
-                document = json.loads(metrics_file(results_dir, segment, method.run_id).read_text())
-                for trajectory in self.plan.trajectories:
-                    entry = document["trajectories"][trajectory]
-                    values[(method.run_id, trajectory, "fid", segment)] = entry.get("fid", {}).get("fid")
-                    kid = entry.get("kid", {}).get("kid")
-                    values[(method.run_id, trajectory, "kid", segment)] = None if kid is None else 1000.0 * kid
-        return values
 
     def _read_features(self, results_dir, methods) -> dict:
         from recondreamer.evaluation.evaluate import read_feature_file
@@ -206,10 +190,9 @@ class MetricData:
 
     def segment_values(self, run_id: str, metric: str, column: str) -> np.ndarray:  # (n,) NaN where undefined
         trajectories = self.plan.trajectories if column == AVERAGE else [column]
-        table = self.diagnostics if METRIC_BY_KEY[metric].pooled else self.values
         rows = []
         for segment in self.segments:
-            per = [table.get((run_id, t, metric, segment)) for t in trajectories]
+            per = [self.values.get((run_id, t, metric, segment)) for t in trajectories]
             per = [math.nan if v is None else float(v) for v in per]
             rows.append(float(np.nanmean(per)) if not all(math.isnan(v) for v in per) else math.nan)
         return np.array(rows)
@@ -325,22 +308,14 @@ SECTIONS = {
 
 def build_findings(plan: ExperimentPlan, results_dir: str | Path, win_rates_file: str | Path | None = None, seed: int = 0) -> list[Evidence]:
     """Evidence for every claim of the paper's tables that this plan's runs can test."""
-    win_document = None
-    if win_rates_file is not None:
-        path = Path(win_rates_file)
-        if not path.is_file():
-            raise ReportInputError(f"win-rate file missing: {path}")
-        try:
-            win_document = json.loads(path.read_text())
-        except json.JSONDecodeError as error:
-            raise ReportInputError(f"{path}: not valid JSON ({error})") from None
-    probe = read_metrics(results_dir, plan.segments, [plan.baseline(plan.ablation_backbone)], plan.trajectories)
-    has_truth = probe.loc[probe["metric"] == "psnr", "value"].notna().all()
-    validity_metrics = [m for m in VALIDITY_METRICS if has_truth or m not in ("psnr", "ssim")]
-    claims = paper_claims(plan, win_document is not None) + validity_claims(plan, validity_metrics)
+    win_document = None if win_rates_file is None else read_win_rates(Path(win_rates_file))
+    claims = paper_claims(plan, win_document is not None) + validity_claims(plan, VALIDITY_METRICS)
     methods = {c.better.run_id: c.better for c in claims if c.metric != "win_rate"}
     methods.update({c.worse.run_id: c.worse for c in claims if c.metric != "win_rate" and c.worse is not None})
     data = MetricData(plan, results_dir, list(methods.values()), seed)
+    # PSNR and SSIM exist only against true novel views (synthetic segments).
+    has_truth = all(v is not None and not math.isnan(v) for (_, _, metric, _), v in data.values.items() if metric == "psnr")
+    claims = [c for c in claims if has_truth or c.metric not in ("psnr", "ssim")]
     evidence = []
     for claim in claims:
         if claim.metric == "win_rate":

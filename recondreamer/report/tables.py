@@ -112,8 +112,9 @@ def read_run_metrics(path: Path, trajectories: Sequence[str], metrics: Sequence[
     return result
 
 
-def read_metrics(results_dir: str | Path, segments: Sequence[str], methods: Sequence[Method], trajectories: Sequence[str]) -> pd.DataFrame:
-    """Long table (segment, run, trajectory, metric, value, file) of every (segment, method) file.
+def read_metrics(results_dir: str | Path, segments: Sequence[str], methods: Sequence[Method], trajectories: Sequence[str], metrics: Sequence[MetricSpec] = SEGMENT_METRICS) -> pd.DataFrame:
+    """Long table (segment, run, trajectory, metric, value, file) of every (segment, method) file;
+    ``metrics=METRICS`` adds the per-segment FID/KID diagnostics.
 
     Raises ReportInputError listing every missing file when any is missing.
     """
@@ -123,7 +124,7 @@ def read_metrics(results_dir: str | Path, segments: Sequence[str], methods: Sequ
         raise ReportInputError(f"{len(missing)} metric file(s) missing (run the workflow's evaluate rule): " + ", ".join(missing))
     records = []
     for segment, method, path in wanted:
-        for trajectory, values in read_run_metrics(path, trajectories).items():
+        for trajectory, values in read_run_metrics(path, trajectories, metrics).items():
             for key, value in values.items():
                 records.append({"segment": segment, "run": method.run_id, "trajectory": trajectory, "metric": key, "value": value, "file": str(path)})
     return pd.DataFrame.from_records(records)
@@ -331,15 +332,20 @@ def build_table5(plan: ExperimentPlan, results_dir: str | Path, notes: Sequence[
     return _metric_table(5, caption, plan, results_dir, rows, comparisons, row_header="Stride", extra_notes=notes)
 
 
-def build_table3(plan: ExperimentPlan, win_rates_file: str | Path, notes: Sequence[str] = ()) -> Table:
-    """Win rates of ReconDreamer against each ``plan.preference_versus`` run, per trajectory."""
-    path = Path(win_rates_file)
+def read_win_rates(path: Path) -> dict:
+    """A win-rate document of 'recondreamer judge' or 'study-ingest'."""
     if not path.is_file():
         raise ReportInputError(f"win-rate file missing: {path} (run the workflow's preference rule)")
     try:
-        document = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except json.JSONDecodeError as error:
         raise ReportInputError(f"{path}: not valid JSON ({error})") from None
+
+
+def build_table3(plan: ExperimentPlan, win_rates_file: str | Path, notes: Sequence[str] = ()) -> Table:
+    """Win rates of ReconDreamer against each ``plan.preference_versus`` run, per trajectory."""
+    path = Path(win_rates_file)
+    document = read_win_rates(path)
     ours = plan.preference_method().run_id
     pairs = {(p["method"], p["versus"]): p for p in document.get("pairs", [])}
     columns, records = [], {}
