@@ -78,7 +78,7 @@ def test_mixing_draws_half_original_and_novel_videos_by_their_weights():
 
 
 def test_lane_change_coverage_of_the_progressive_offsets():
-    lane_change = lateral_offsets("lane_change", 40)  # 0 .. 3.9 m in 0.1 m steps
+    lane_change = lateral_offsets("lane_change", 40)  # 0 .. 3.9 m in 0.1 m steps (40 frames)
     # 0, 1.5, 3, 4.5, 6: the worst lane-change poses (0.7/0.8, 2.2/2.3 m) are 0.7 m from a trained one.
     assert coverage_gap(PdusSchedule.for_iterations(1.5, 2000).offsets(), lane_change) == pytest.approx(0.7)
     # No PDUS (6 m at once) leaves the middle of the lane change 3 m from anything trained.

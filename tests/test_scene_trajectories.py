@@ -39,6 +39,10 @@ def test_lateral_offsets():
     assert lane_change[1] == pytest.approx(0.1)
     assert lane_change[39] == pytest.approx(3.9)
     np.testing.assert_allclose(np.diff(lane_change), 0.1)
+    # Shorter clips still reach the neighbouring lane by their last frame.
+    compact = lateral_offsets("lane_change", 24)
+    assert compact[0] == 0.0 and compact[-1] == pytest.approx(3.9)
+    np.testing.assert_allclose(np.diff(compact), 3.9 / 23)
 
 
 @pytest.mark.parametrize(
@@ -78,7 +82,7 @@ def test_cameras_move_along_the_ego_left_axis_with_orientation_unchanged(name):
     offsets = {
         "shift@3": np.full(NUM_FRAMES, 3.0),
         "shift@-2": np.full(NUM_FRAMES, -2.0),
-        "lane_change": 0.1 * np.arange(NUM_FRAMES),
+        "lane_change": 0.1 * np.arange(NUM_FRAMES),  # 40 frames: 0.1 m per frame
     }[name]
     yaw = 0.05 * np.arange(NUM_FRAMES)
     left = np.stack([-np.sin(yaw), np.cos(yaw), np.zeros(NUM_FRAMES)], axis=1)  # ego +y in the world
@@ -138,7 +142,7 @@ def test_scene_trajectory_uses_its_ego_poses(tmp_path):
     np.testing.assert_array_equal(scene.trajectory("original"), scene.cam_to_world)
     lane_change = scene.trajectory("lane_change")
     expected = data.ego_to_world @ data.cam_to_ego
-    expected[:, :3, 3] += 0.1 * np.arange(3)[:, None] * data.ego_to_world[:, :3, 1]
+    expected[:, :3, 3] += 3.9 * np.arange(3)[:, None] / 2 * data.ego_to_world[:, :3, 1]
     np.testing.assert_allclose(lane_change, expected, atol=1e-12)
     with pytest.raises(ValueError, match="unknown trajectory"):
         scene.trajectory("shift@x")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from recondreamer.scene.structure import project_box_2d
-from recondreamer.scene.trajectories import trajectory_cam_to_world
+from recondreamer.scene.trajectories import lateral_offsets, trajectory_cam_to_world
 from recondreamer.scene.types import SEMANTIC_CLASSES
 from recondreamer.sources.synthetic import generate_segment
 
@@ -122,8 +122,9 @@ def test_lane_change_offsets(segment):
     lane_change = segment.novel["lane_change"]
     assert np.array_equal(lane_change.images[0], segment.frames.images[0])  # offset 0 at frame 0
     assert not np.array_equal(lane_change.images[10], segment.frames.images[10])
-    assert _lateral_agreement(segment, "lane_change", 10, 1.0, +1) >= 0.85  # 0.1 m per frame
-    assert _lateral_agreement(segment, "lane_change", 10, 0.5, +1) < 0.6
+    offset = float(lateral_offsets("lane_change", segment.num_frames)[3])
+    assert _lateral_agreement(segment, "lane_change", 3, offset, +1) >= 0.85
+    assert _lateral_agreement(segment, "lane_change", 3, offset / 2, +1) < 0.6
 
 
 def test_lidar_points_and_visible_counts(segment):

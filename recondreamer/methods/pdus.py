@@ -118,7 +118,7 @@ def coverage_gap(trained_offsets: list[float], target_offsets: np.ndarray) -> fl
     """Largest distance (m) from a target lateral offset to the nearest trained one (0 = original).
 
     Used to state how the constant-shift offsets trained by PDUS cover the lane change, whose
-    frame i drifts 0.1 * i m to the left (0 .. 3.9 m over 40 frames).
+    drifts linearly from 0 to 3.9 m to the left over the clip.
     """
     trained = np.asarray([0.0, *trained_offsets], dtype=np.float64)
     targets = np.asarray(target_offsets, dtype=np.float64)

@@ -1,10 +1,15 @@
 """Training data of the generative stack: corpus sequences and restoration pairs, as latents.
 
-A *sequence* is one camera trajectory of one scene: target frames, the original-trajectory frames
-used as reference (the same frames for the original trajectory; the true novel views of a
-synthetic scene are targets referenced by the original frames, which is exactly the
-DriveDreamer4D task), structure maps drawn in the target camera, and for restoration pairs the
-degraded renders of several training stages. Clips are short windows of a sequence.
+A *sequence* is one camera trajectory of one scene: target frames, the frames used as reference,
+structure maps drawn in the target camera, and for restoration pairs the degraded renders of
+several training stages. Clips are short windows of a sequence.
+
+World models see what a real one could have seen: videos along driven trajectories, each clip
+conditioned on its own first frame and its own structure maps. A synthetic corpus scene is driven
+several times, in different lanes, as a fleet would (its original trajectory and the lateral
+drives it renders), and every drive is a sequence of its own; no sequence pairs one drive's
+frames with another drive's targets (that would be supervised novel-view synthesis on exactly
+the evaluation trajectories, which DriveDreamer-2 never had).
 """
 
 from __future__ import annotations
@@ -71,7 +76,7 @@ class Sequence:
     name: str
     scene_id: str
     target: torch.Tensor  # (T,c,h,w) latents of the frames to generate / restore to
-    reference: torch.Tensor  # (T,c,h,w) latents of the original-trajectory frames
+    reference: torch.Tensor  # (T,c,h,w) latents of the frames a clip is conditioned on (its own drive's)
     structure: np.ndarray | None  # (T,S,H,W) uint8 structure maps in the target camera
     degraded: torch.Tensor | None = None  # (K,T,c,h,w) latents of degraded renders (pairs)
     degraded_frames: np.ndarray | None = None  # (K,T,H,W,3) uint8, kept for masks and image-space losses
@@ -114,26 +119,26 @@ def load_corpus_frames(corpus: str | os.PathLike, max_frames_per_scene: int | No
 
 
 def load_corpus_sequences(corpus: str | os.PathLike, autoencoder: Autoencoder, with_structure: bool) -> list[Sequence]:
-    """Every scene of a corpus: its original trajectory and, where present, its true novel views."""
+    """Every drive of every corpus scene (the original trajectory and the lateral drives the scene
+    renders), each its own sequence referenced by its own frames."""
     from recondreamer.scene import load_scene
     from recondreamer.scene.trajectories import trajectory_cam_to_world
 
     sequences = []
     for scene_dir in find_scene_dirs(corpus):
         scene = load_scene(scene_dir)
-        original = np.stack([scene.image(t) for t in range(scene.num_frames)])
-        reference = encode_frames(autoencoder, original)
-        trajectories = [("original", original)]
+        trajectories = [("original", np.stack([scene.image(t) for t in range(scene.num_frames)]))]
         for name in scene.novel_trajectories:
             trajectories.append((name, np.stack([scene.novel_image(name, t) for t in range(scene.num_frames)])))
         for name, frames in trajectories:
             cams = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, name)
+            latents = encode_frames(autoencoder, frames)
             sequences.append(
                 Sequence(
                     name=f"{scene.scene_id}/{name}",
                     scene_id=scene.scene_id,
-                    target=reference if name == "original" else encode_frames(autoencoder, frames),
-                    reference=reference,
+                    target=latents,
+                    reference=latents,  # a drive's clips are conditioned on its own frames only
                     structure=scene_structure(scene, cams) if with_structure else None,
                 )
             )

@@ -5,8 +5,9 @@ Names:
 - ``original``: the recorded cameras;
 - ``shift@Y``: every camera moved by a constant Y metres along its frame's ego left axis
   (``ego_to_world[t, :3, 1]``), orientation unchanged; any real Y, negative = to the right;
-- ``lane_change``: frame i moved 0.1*i metres to the left (3.9 m at frame 39), orientation
-  unchanged;
+- ``lane_change``: a linear drift to the left that reaches the neighbouring lane, 3.9 m, at the
+  last frame (frame i of T moved 3.9*i/(T-1) metres: the public code's 0.1 m per frame on the
+  paper's 40-frame clips, and still a full lane on shorter clips), orientation unchanged;
 - ``file:PATH``: camera-to-world poses read from a ``.npy`` array or a ``.json`` list of shape
   (T,4,4), T = number of frames of the scene.
 """
@@ -21,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 EVAL_TRAJECTORIES = ("shift@3", "shift@6", "lane_change")
-LANE_CHANGE_METRES_PER_FRAME = 0.1
+LANE_CHANGE_METRES = 3.9  # lateral offset at the last frame: 0.1 m per frame over 40 frames
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ def lateral_offsets(name: str, num_frames: int) -> np.ndarray:  # (T,) float64 m
     if spec.kind == "shift":
         return np.full(num_frames, spec.offset)
     if spec.kind == "lane_change":
-        return LANE_CHANGE_METRES_PER_FRAME * frames
+        return LANE_CHANGE_METRES * frames / max(num_frames - 1, 1)
     raise ValueError(f"trajectory {name!r} is read from a file of poses and has no lateral offsets")
 
 
