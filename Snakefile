@@ -2,6 +2,7 @@
 #   snakemake --cores 2                                   embedded synthetic benchmark (config/config.yaml)
 #   snakemake --cores 2 --configfile config/quick.yaml    the same DAG at tiny sizes
 #   snakemake --report results/report.html                the Snakemake report
+#   snakemake --cores 2 --configfile config/foundation.yaml  the foundation weight set (weights/, GATES.md)
 # Every job is one `recondreamer` command; see config/README.md.
 
 from snakemake.utils import min_version, validate
@@ -31,6 +32,7 @@ include: "workflow/rules/restorer.smk"
 include: "workflow/rules/recondreamer.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/foundation.smk"
 
 
 rule all:

@@ -41,12 +41,7 @@ import time
 
 import numpy as np
 
-
-def flicker(clip: np.ndarray, gt: np.ndarray) -> float:
-    """Temporal-difference error of (T,H,W,3) uint8 clips, in 0-255 units."""
-    dx = np.diff(clip.astype(np.float32), axis=0)
-    dg = np.diff(gt.astype(np.float32), axis=0)
-    return float(np.mean(np.abs(dx - dg)))
+from recondreamer.foundation.gates import flicker
 
 
 def mean(values: list[float]) -> float:

@@ -14,6 +14,7 @@ import sys
 
 from recondreamer import __version__
 from recondreamer.errors import RecondreamerError
+from recondreamer.provenance import record_command
 
 # Stage order = the order sub-commands are listed in ``recondreamer --help``.
 COMMAND_MODULES = (
@@ -24,6 +25,7 @@ COMMAND_MODULES = (
     "recondreamer.restorer.commands",
     "recondreamer.methods.commands",
     "recondreamer.evaluation.commands",
+    "recondreamer.foundation.commands",
     "recondreamer.report.commands",
 )
 
@@ -50,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    record_command(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(
         level=getattr(logging, args.log_level),
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

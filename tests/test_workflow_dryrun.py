@@ -209,14 +209,63 @@ def test_slurm_profile_gives_gpu_rules_a_gpu_and_memory_growing_with_attempts(tm
     assert "gpu=1" not in by_rule["synth_corpus_scene"] and "mem_mb=8000" in by_rule["synth_corpus_scene"]
 
 
-def test_restorer_steps_per_backbone_override_the_common_steps(tmp_path):
+def test_restorer_steps_and_crop_reach_every_fine_tuning_alike(tmp_path):
     root = workflow_copy(tmp_path)
     config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
-    config["restorer"].update(steps=20, backbone_steps={"svd": 35})
+    config["restorer"].update(steps=35, crop=[0, 0])
     (root / "steps.yaml").write_text(yaml.safe_dump(config))
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "steps.yaml", "--until", "train_restorer").stdout
-    steps = dict(re.findall(r"train-restorer --arch (\w+) .*?--steps (\d+)", shell))
-    assert steps == {"sd": "20", "svd": "35", "dd2": "20", "dd2_mask": "20"}
+    steps = dict(re.findall(r"train-restorer --arch (\w+) .*?--steps (\d+) --crop 0 0 ", shell))
+    assert steps == {"sd": "35", "svd": "35", "dd2": "35", "dd2_mask": "35"}
+
+
+FOUNDATION_TRAINING = ("train-autoencoder", "pretrain-world-model", "train-restorer", "train-eval-models")
+
+
+def test_foundation_config_dry_run_builds_every_foundation_model_and_its_gates(tmp_path):
+    root = workflow_copy(tmp_path)
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "config/foundation.yaml")
+    assert result.returncode == 0, result.stderr
+    expected = {
+        "synth_corpus_scene": 40, "synth_gate_scene": 4, "train_gate_recon": 4, "make_gate_pairs": 4,
+        "train_corpus_recon": 16 * 4, "make_pairs_corpus": 16, "train_autoencoder": 1, "pretrain_world_model": 3,
+        "train_restorer": 4, "train_eval_models": 1, "foundation_gates": 1, "publish_weights": 1, "all": 1,
+    }
+    assert job_counts(result.stdout + result.stderr) == {**expected, "total": sum(expected.values())}
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "config/foundation.yaml").stdout
+    restorers = dict(re.findall(r"train-restorer --arch (\w+) .*?--steps (\d+) ", shell))
+    assert restorers == {"sd": "3000", "svd": "3000", "dd2": "3000", "dd2_mask": "3000"}  # one budget for every backbone
+    assert len(re.findall(r"recondreamer pretrain-world-model --arch (sd|svd|dd2) ", shell)) == 3
+    assert "recondreamer train-autoencoder " in shell and "recondreamer train-eval-models " in shell
+    assert re.search(r"recondreamer make-pairs --run \S+gate_runs/gate-000/street .*--trajectories original shift@3 shift@6", shell)
+    assert "recondreamer weights publish " in shell and "--out weights " in shell
+    # Restoration pairs come from corpus reconstructions by all four backbones, never from an evaluation segment.
+    assert "make_pairs_segment" not in shell and "train-recon --scene results/foundation/scenes/" not in shell
+
+
+def test_foundation_seeds_are_checked_at_parse_time(tmp_path):
+    root = workflow_copy(tmp_path)
+    config = yaml.safe_load((root / "config" / "foundation.yaml").read_text())
+    for edit, message in (
+        (lambda c: c["foundation"].update(gate_seeds=[10003]), "foundation.gate_seeds [10003] overlap the corpus or evaluation seeds"),
+        (lambda c: c["foundation"].update(reserved_seeds=[10005]), "synthetic.corpus seeds overlap the evaluation seeds (segments, foundation.reserved_seeds) [10005]"),
+        (lambda c: c["foundation"].update(weights="shipped"), "target 'foundation' trains the foundation models: set foundation.weights to 'train'"),
+    ):
+        bad = yaml.safe_load(yaml.safe_dump(config))
+        edit(bad)
+        (root / "bad.yaml").write_text(yaml.safe_dump(bad))
+        result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "bad.yaml")
+        assert result.returncode != 0 and message in result.stdout + result.stderr, result.stdout + result.stderr
+
+
+def test_a_missing_weight_set_stops_the_run_at_parse_time(tmp_path):
+    root = workflow_copy(tmp_path)
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["foundation"] = {"weights": "absent-weights"}
+    (root / "set.yaml").write_text(yaml.safe_dump(config))
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "set.yaml")
+    assert result.returncode != 0
+    assert "absent-weights/manifest.json: weight-set manifest not found (the folder does not exist)" in result.stdout + result.stderr
 
 
 def test_restorer_timestep_power_pixel_loss_weight_ema_decay_and_depth_reach_every_fine_tuning_and_only_when_set(tmp_path):

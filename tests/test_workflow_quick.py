@@ -1,6 +1,8 @@
-"""End to end: the quick config through Snakemake in a temporary directory, then the report.
-The run takes minutes, hence the slow mark; it fails whenever the workflow fails."""
+"""End to end: the quick foundation config builds a weight set, then the quick experiment runs on
+it, through Snakemake in a temporary directory, then the report. The runs take minutes, hence the
+slow mark; they fail whenever the workflow fails."""
 
+import json
 import math
 import shutil
 import subprocess
@@ -9,22 +11,62 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import yaml
 
 REPO = Path(__file__).resolve().parents[1]
+QUICK_WEIGHTS = "results/quick-foundation/weights"
+TRAINING_COMMANDS = ("train-autoencoder", "pretrain-world-model", "train-restorer", "train-eval-models")
+
+
+def snakemake(root: Path, *args: str, timeout: int = 1700) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "snakemake", *args], check=False, cwd=root, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    """A workflow copy in which the quick foundation has built its weight set."""
+    root = tmp_path_factory.mktemp("wf")
+    for name in ("Snakefile", "workflow", "config", "profiles"):
+        source = REPO / name
+        (shutil.copytree if source.is_dir() else shutil.copy)(source, root / name)
+    run = snakemake(root, "--cores", "2", "--printshellcmds", "--configfile", "config/quick-foundation.yaml")
+    assert run.returncode == 0, run.stderr[-5000:]
+    for command in (*TRAINING_COMMANDS, "foundation-gates", "weights publish"):
+        assert f"recondreamer {command} " in run.stdout + run.stderr, command
+    return root
+
+
+def experiment_config(root: Path, weights: str) -> str:
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["foundation"] = {"weights": weights}
+    (root / "on-weights.yaml").write_text(yaml.safe_dump(config))
+    return "on-weights.yaml"
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
-def test_quick_config_end_to_end(tmp_path):
-    root = tmp_path / "wf"
-    root.mkdir()
-    for name in ("Snakefile", "workflow", "config", "profiles"):
-        source = REPO / name
-        (shutil.copytree if source.is_dir() else shutil.copy)(source, root / name)
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", "--configfile", "config/quick.yaml"],
-                         check=False, cwd=root, capture_output=True, text=True, timeout=1700)
-    assert run.returncode == 0, run.stderr[-5000:]
+def test_quick_foundation_publishes_a_verified_weight_set(root):
+    weights = root / QUICK_WEIGHTS
+    verify = subprocess.run([sys.executable, "-m", "recondreamer", "weights", "verify", str(weights)], check=False, capture_output=True, text=True)
+    assert verify.returncode == 0 and "11 files verified" in verify.stdout, verify.stderr
+    manifest = json.loads((weights / "manifest.json").read_text())
+    assert manifest["corpus"]["seeds"] == [10000, 10003] and manifest["gate_scenes"]["seeds"] == [20000]
+    assert manifest["files"]["restorer_svd.pt"]["command"].startswith("recondreamer train-restorer --arch svd ")
+    assert {entry["training"].get("steps") for name, entry in manifest["files"].items() if name.startswith("restorer_")} == {20}
+    report = (weights / "GATES.md").read_text()
+    for row in ("| dd2_mask | shift@3 |", "| dd2_mask | shift@6 |", "| dd2_mask | original |", "| sd | shift@6 |", "| autoencoder |", "| vehicle detector |"):
+        assert row in report, row
 
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+def test_quick_experiment_on_the_weight_set_trains_no_foundation_model(root):
+    configfile = experiment_config(root, QUICK_WEIGHTS)
+    run = snakemake(root, "--cores", "2", "--printshellcmds", "--configfile", configfile)
+    assert run.returncode == 0, run.stderr[-5000:]
+    for command in TRAINING_COMMANDS:
+        assert f"recondreamer {command} " not in run.stdout + run.stderr, command
+    assert not (root / "results" / "quick" / "models").exists() and not (root / "results" / "quick" / "eval_models").exists()
     tables = root / "results" / "quick" / "tables"
     expected_rows = {
         1: ["PVG", "S3Gaussian", "Deformable-GS", "Street Gaussians", "ReconDreamer with PVG", "ReconDreamer with S3Gaussian",
@@ -52,7 +94,42 @@ def test_quick_config_end_to_end(tmp_path):
     findings = (root / "results" / "quick" / "findings.md").read_text()
     assert "## Table 1: reconstruction baselines and ReconDreamer" in findings and "## Metric validity" in findings
     assert "fewer than 3 segments" in findings  # the quick config has one segment: no verdict claims significance
-    report = subprocess.run([sys.executable, "-m", "snakemake", "--configfile", "config/quick.yaml", "--report", "report.html"],
-                            check=False, cwd=root, capture_output=True, text=True, timeout=600)
+    assert f"from the weight set {QUICK_WEIGHTS}" in (tables / "table1.md").read_text()
+    report = snakemake(root, "--configfile", configfile, "--report", "report.html", timeout=600)
     assert report.returncode == 0, report.stderr[-5000:]
     assert (root / "report.html").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_an_altered_missing_or_foreign_file_stops_the_run_at_parse_time(root, tmp_path):
+    source = root / QUICK_WEIGHTS
+    cases = {
+        "altered": (lambda d: (d / "restorer_dd2_mask.pt").open("ab").write(b"\0"), "restorer_dd2_mask.pt: altered: sha256"),
+        "missing": (lambda d: (d / "world_model_dd2.pt").unlink(), "world_model_dd2.pt: missing"),
+        "foreign": (swap_in_a_detector, "restorer_sd.pt: an architecture this code cannot load as restorer sd"),
+    }
+    for name, (damage, message) in cases.items():
+        copy = root / f"weights-{name}"
+        shutil.copytree(source, copy)
+        damage(copy)
+        result = snakemake(root, "-n", "--configfile", experiment_config(root, copy.name), timeout=300)
+        assert result.returncode != 0 and message in result.stdout + result.stderr, (name, result.stdout[-2000:] + result.stderr[-2000:])
+        assert "train-restorer" not in result.stdout
+    # Evaluation seeds the set's models saw are refused.
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["foundation"] = {"weights": QUICK_WEIGHTS}
+    config["synthetic"]["segments"] = {"seen": 10001}
+    (root / "seen.yaml").write_text(yaml.safe_dump(config))
+    result = snakemake(root, "-n", "--configfile", "seen.yaml", timeout=300)
+    assert result.returncode != 0 and "synthetic.segments seeds [10001] are corpus or gate seeds of the weight set" in result.stdout + result.stderr
+
+
+def swap_in_a_detector(folder: Path) -> None:
+    """The detector's file under the sd restorer's name, with the manifest's hash made to match."""
+    from recondreamer.foundation.weights import sha256_file
+
+    shutil.copyfile(folder / "vehicle_detector.pt", folder / "restorer_sd.pt")
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["files"]["restorer_sd.pt"]["sha256"] = sha256_file(folder / "restorer_sd.pt")
+    (folder / "manifest.json").write_text(json.dumps(manifest))

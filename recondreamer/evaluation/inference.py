@@ -23,6 +23,7 @@ from recondreamer.errors import CheckpointError
 from recondreamer.evaluation.inception import INCEPTION_STATE_DICT_KEY, FIDInceptionV3
 from recondreamer.evaluation.models import MODEL_CONFIGS, config_from_dict, config_to_dict
 from recondreamer.io import atomic_path
+from recondreamer.provenance import command_line
 
 FORMAT = "recondreamer-eval-model"
 FORMAT_VERSION = 1
@@ -63,6 +64,7 @@ def save_model(path: str | Path, kind: str, module: torch.nn.Module, training: d
         "config": config_to_dict(module.config),
         "state_dict": module.state_dict(),
         "training": training,
+        "command": command_line(),  # the weight set's manifest names it
     }
     with atomic_path(path) as tmp:
         torch.save(payload, tmp)

@@ -119,12 +119,44 @@ def features_file(results_dir: str | Path, segment: str, run_id: str) -> Path:
     return metrics_file(results_dir, segment, run_id).with_suffix(".features.npz")
 
 
-def world_model_path(results_dir: str | Path, arch: str) -> Path:
-    return Path(results_dir) / "models" / f"world_model_{arch}.pt"
+def weight_set_dir(config) -> Path | None:
+    """The weight set a workflow config's models come from (``foundation.weights``), or None when
+    the run trains them itself (``train``)."""
+    source = config.get("foundation", {}).get("weights", "shipped")
+    if source == "train":
+        return None
+    if source == "shipped":
+        from recondreamer.foundation.weights import shipped_weights_dir
+
+        return shipped_weights_dir()
+    return Path(source)
+
+
+def model_path(config, kind: str, arch: str | None = None) -> str:
+    """Where a run finds one foundation model: in its weight set, or where its DAG trains it
+    (``<results_dir>/models/`` for the generative models, ``<results_dir>/eval_models/`` for the
+    evaluation models)."""
+    from recondreamer.foundation.weights import weight_file
+
+    name = weight_file(kind, arch).name
+    folder = weight_set_dir(config)
+    if folder is not None:
+        return str(folder / name)
+    trained = "eval_models" if kind in ("vehicle_detector", "lane_segmenter", "fid_features") else "models"
+    return str(Path(config["results_dir"]) / trained / name)
+
+
+def world_model_path(config, arch: str) -> str:
+    return model_path(config, "world_model", arch)
 
 
 def restorer_checkpoint_path(config, arch: str) -> str:
     """The DriveRestorer the ReconDreamer runs of a workflow config use: the configured local
-    file, else the one the workflow trains (with its pixel refiner when restorer.refiner_steps > 0)."""
-    trained = f"restorer_{arch}_refined.pt" if config["restorer"]["refiner_steps"] else f"restorer_{arch}.pt"
-    return config["restorer"]["checkpoints"].get(arch) or str(Path(config["results_dir"]) / "models" / trained)
+    file, else the weight set's, else the one the workflow trains (with its pixel refiner when
+    restorer.refiner_steps > 0)."""
+    own = config["restorer"]["checkpoints"].get(arch)
+    if own:
+        return own
+    if weight_set_dir(config) is None and config["restorer"]["refiner_steps"]:
+        return str(Path(config["results_dir"]) / "models" / f"restorer_{arch}_refined.pt")
+    return model_path(config, "restorer", arch)

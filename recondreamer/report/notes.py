@@ -15,9 +15,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from recondreamer.report.layout import BACKBONE_LABELS, RESTORER_LABELS, format_stride, restorer_checkpoint_path, world_model_path
+from recondreamer.report.layout import (
+    BACKBONE_LABELS,
+    RESTORER_LABELS,
+    format_stride,
+    model_path,
+    restorer_checkpoint_path,
+    weight_set_dir,
+    world_model_path,
+)
 
-EVAL_MODEL_FILES = {"detector": "vehicle_detector.pt", "lane_model": "lane_segmenter.pt", "fid_model": "fid_features.pt"}
+EVAL_MODEL_KINDS = {"detector": "vehicle_detector", "lane_model": "lane_segmenter", "fid_model": "fid_features"}  # config key -> weight-set kind
 WORLD_MODEL_OF = {"sd": "sd", "svd": "svd", "dd2": "dd2", "dd2_mask": "dd2"}  # dd2_mask fine-tunes the dd2 world model
 
 
@@ -66,7 +74,7 @@ def recon_iterations(config: Mapping) -> int:
     return int(recon["iterations"]) if recon.get("iterations") else make_config("street", recon["preset"]).iterations
 
 
-def _restorer_recipe(payload: dict) -> list[str]:
+def restorer_recipe(payload: dict) -> list[str]:
     """The changes to the paper's DriveRestorer recipe that a restorer checkpoint has on."""
     config = payload.get("config", {})
     diffusion, train, restore = config.get("diffusion", {}), config.get("train", {}), config.get("restore", {})
@@ -94,7 +102,6 @@ def _restorer_recipe(payload: dict) -> list[str]:
 
 def run_notes(config: Mapping) -> dict[int, list[str]]:
     """Notes per table number for the run described by a validated workflow config."""
-    results = Path(config["results_dir"])
     experiment = config["experiment"]
     lines_models: list[str] = []
 
@@ -104,7 +111,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
     for arch in experiment["restorer_backbones"]:
         path = Path(restorer_checkpoint_path(config, arch))
         restorer = _load(path)
-        world = _load(world_model_path(results, WORLD_MODEL_OF[arch]))
+        world = _load(Path(world_model_path(config, WORLD_MODEL_OF[arch])))
         label = RESTORER_LABELS.get(arch, arch)
         if restorer is None:
             lines_models.append(f"{label}: restorer file {path} not found (notes incomplete).")
@@ -119,9 +126,9 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         origin = f"the user's file {own}" if own else f"{world_text}, then fine-tuned {steps} steps as DriveRestorer on pairs of {len(scenes)} scene(s)"
         lines_models.append(f"{label}: a stand-in, a {_millions(restorer.parameters)}-parameter latent UNet ({origin}).")
         restorer_budget.append(f"{arch} {steps}")
-        recipes[arch] = _restorer_recipe(restorer.payload)
+        recipes[arch] = restorer_recipe(restorer.payload)
 
-    autoencoder = _load(results / "models" / "autoencoder.pt")
+    autoencoder = _load(Path(model_path(config, "autoencoder")))
     if autoencoder is not None:
         psnr = autoencoder.payload.get("metrics", {}).get("heldout_psnr")
         lines_models.append(
@@ -137,7 +144,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
     }
     for key, (role, paper_name, what) in eval_descriptions.items():
         own = config["eval_models"].get(key)
-        path = Path(own) if own else results / "eval_models" / EVAL_MODEL_FILES[key]
+        path = Path(own) if own else Path(model_path(config, EVAL_MODEL_KINDS[key]))
         if own:
             lines_models.append(f"{role}: the user's file {own} in place of {paper_name}.")
             continue
@@ -154,12 +161,15 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
 
     iterations = recon_iterations(config)
     pair_sources = []
-    if config["restorer"]["pair_segment_backbones"]:
+    weights = weight_set_dir(config)
+    if weights is not None:
+        pair_sources.append(f"the corpus scene reconstructions of the weight set {weights}")
+    elif config["restorer"]["pair_segment_backbones"]:
         pair_sources.append(
             f"the evaluation segments' baseline runs ({', '.join(BACKBONE_LABELS.get(b, b) for b in config['restorer']['pair_segment_backbones'])}) "
             "along their recorded trajectories"
         )
-    if config["restorer"]["pair_corpus_scenes"]:
+    if weights is None and config["restorer"]["pair_corpus_scenes"]:
         pair_sources.append(f"{config['restorer']['pair_corpus_scenes']} corpus scene reconstruction(s)")
     budgets = [
         f"Training budgets: every reconstruction (baseline, DriveDreamer4D, ReconDreamer) {iterations} iterations; "
@@ -175,7 +185,8 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         for arch, changes in recipes.items():
             recipe_lines.append(f"Changes to the paper's recipe ({RESTORER_LABELS.get(arch, arch)}): " + ("; ".join(changes) if changes else "none") + ".")
 
-    common = ["Stand-ins (small models trained here, named with the paper's models they replace): " + " ".join(lines_models), *recipe_lines, *budgets]
+    origin = "trained in this run" if weights is None else f"trained once on the synthetic corpus, from the weight set {weights} (gates in its GATES.md)"
+    common = [f"Stand-ins (small models {origin}, named with the paper's models they replace): " + " ".join(lines_models), *recipe_lines, *budgets]
     methods = config.get("methods", {})
     stride_lines = []
     for stride in experiment["strides"]:

@@ -16,6 +16,7 @@ import torch
 
 from recondreamer.errors import CheckpointError
 from recondreamer.io import atomic_path
+from recondreamer.provenance import command_line
 from recondreamer.restorer.device import tensors_to_cpu
 
 FORMAT = "recondreamer.restorer"
@@ -28,6 +29,7 @@ def save_checkpoint(path: str | os.PathLike, kind: str, arch: str, config: dict,
     if kind not in KINDS:
         raise ValueError(f"unknown checkpoint kind {kind!r}")
     payload = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": kind, "arch": arch, "config": config, "state": state}
+    payload["command"] = command_line()  # the weight set's manifest names it
     payload.update(extra)
     payload = tensors_to_cpu(payload)  # a job trained on a GPU writes a file any machine loads
     with atomic_path(path) as tmp:

@@ -6,13 +6,17 @@ import os
 
 from snakemake.exceptions import WorkflowError
 
-from recondreamer.report.layout import features_file, metrics_file, render_dir, restorer_checkpoint_path, run_dir
+from recondreamer.foundation.weights import WeightsError, verify_weight_set, weight_file
+from recondreamer.report.layout import features_file, metrics_file, model_path, render_dir, restorer_checkpoint_path, run_dir, weight_set_dir
 from recondreamer.report.plan import ExperimentPlan
 
 RESULTS = config["results_dir"]
 EXPERIMENT = config["experiment"]
 TRAJECTORIES = list(EXPERIMENT["trajectories"])
 DD4D_TRAJECTORIES = list(config["methods"]["dd4d_trajectories"])  # generated once per segment, shared by every backbone
+TARGET = config["target"]  # experiment: the tables; foundation: a weight set (config/foundation.yaml)
+WEIGHTS_DIR = weight_set_dir(config)  # None: this DAG trains the foundation models itself
+FOUNDATION = config["foundation"]
 
 
 def results(*parts):
@@ -53,9 +57,14 @@ def _check_config():
     if config["source"] == "synthetic":
         corpus = config["synthetic"]["corpus"]
         seeds = set(range(corpus["first_seed"], corpus["first_seed"] + corpus["num_scenes"]))
-        clash = sorted(seeds & set(config["synthetic"]["segments"].values()))
+        evaluation_seeds = set(config["synthetic"]["segments"].values()) | set(FOUNDATION["reserved_seeds"])
+        clash = sorted(seeds & evaluation_seeds)
         if clash:
-            problems.append(f"synthetic.corpus seeds overlap the segment seeds {clash}")
+            problems.append(f"synthetic.corpus seeds overlap the evaluation seeds (segments, foundation.reserved_seeds) {clash}")
+        if TARGET == "foundation":
+            clash = sorted(set(FOUNDATION["gate_seeds"]) & (seeds | evaluation_seeds))
+            if clash:
+                problems.append(f"foundation.gate_seeds {clash} overlap the corpus or evaluation seeds: gates need scenes no model saw")
     else:
         waymo = config["waymo"]
         missing = [
@@ -75,6 +84,10 @@ def _check_config():
                 problems.append(f"waymo.segments.{name}: end {spec['end']} is before start {spec.get('start', 0)}")
         if config["preference"]["judge"] == "automatic":
             problems.append("preference.judge 'automatic' needs the true novel views of synthetic scenes; use 'people' or 'none' with source 'waymo'")
+    if TARGET == "foundation" and WEIGHTS_DIR is not None:
+        problems.append(f"target 'foundation' trains the foundation models: set foundation.weights to 'train' (it is {FOUNDATION['weights']!r})")
+    if WEIGHTS_DIR is not None and config["restorer"]["refiner_steps"]:
+        problems.append("restorer.refiner_steps > 0 trains a refiner on restorers this DAG trains: it needs foundation.weights 'train'")
     if config["preference"]["judge"] == "people":
         if not config["preference"]["answers"]:
             problems.append("preference.judge 'people' needs preference.answers (CSV files downloaded from the study page)")
@@ -102,6 +115,30 @@ def _check_config():
     if problems:
         raise WorkflowError("invalid config:\n  - " + "\n  - ".join(problems))
     return plan
+
+
+def _check_weight_set(plan):
+    """The files of the weight set this run uses: listed, unaltered, loadable; trained on no evaluation seed."""
+    needed = [os.path.basename(path) for path in weight_set_files(plan)]
+    try:
+        manifest = verify_weight_set(WEIGHTS_DIR, needed)
+    except WeightsError as error:
+        raise WorkflowError(f"foundation.weights {FOUNDATION['weights']!r}: {error}")
+    if config["source"] == "synthetic":
+        first, last = manifest["corpus"]["seeds"]
+        seen = set(range(first, last + 1)) | set(manifest["gate_scenes"]["seeds"])
+        clash = sorted(seen & set(config["synthetic"]["segments"].values()))
+        if clash:
+            raise WorkflowError(f"synthetic.segments seeds {clash} are corpus or gate seeds of the weight set {WEIGHTS_DIR}: evaluate on seeds its models never saw")
+
+
+def weight_set_files(plan):
+    """The weight-set files a run reads (those not replaced by a configured local file)."""
+    files = [restorer_checkpoint_path(config, arch) for arch in plan.restorers]
+    if plan.dd4d_backbones:
+        files.append(model_path(config, "world_model", "dd2"))
+    files += eval_model_files()
+    return [path for path in files if WEIGHTS_DIR is not None and os.path.dirname(path) == str(WEIGHTS_DIR)]
 
 
 PLAN = _check_config()
@@ -161,19 +198,23 @@ def all_features_files():
 def note_model_files():
     """The model files the tables' notes describe (restorers, world models, autoencoder, evaluation models)."""
     files = [restorer_checkpoint(arch) for arch in PLAN.restorers]
-    files += [results("models", f"world_model_{arch}.pt") for arch in sorted({WORLD_MODEL_OF[r] for r in PLAN.restorers}) if not config["restorer"]["checkpoints"].get(arch)]
-    files += [results("models", "autoencoder.pt")]
+    files += [model_path(config, "world_model", arch) for arch in sorted({WORLD_MODEL_OF[r] for r in PLAN.restorers}) if not config["restorer"]["checkpoints"].get(arch)]
+    files += [model_path(config, "autoencoder")]
     return sorted(set(files)) + eval_model_files()
 
 
 def eval_model_files():
-    """Trained evaluation models that the evaluation uses (those not replaced by a configured local file)."""
-    trained = {"detector": "vehicle_detector.pt", "lane_model": "lane_segmenter.pt", "fid_model": "fid_features.pt"}
-    return [results("eval_models", name) for key, name in trained.items() if config["eval_models"][key] is None]
+    """The evaluation models that the evaluation uses (those not replaced by a configured local file)."""
+    kinds = {"detector": "vehicle_detector", "lane_model": "lane_segmenter", "fid_model": "fid_features"}
+    return [model_path(config, kind) for key, kind in kinds.items() if config["eval_models"][key] is None]
 
 
 def restorer_checkpoint(arch):
     return restorer_checkpoint_path(config, arch)
+
+
+if WEIGHTS_DIR is not None and TARGET == "experiment":
+    _check_weight_set(PLAN)  # at parse time: no job starts on a missing, altered or unloadable model file
 
 
 def write_run_config(values, path, log_path):
@@ -200,6 +241,8 @@ def plan_arguments():
 
 
 def final_outputs():
+    if TARGET == "foundation":
+        return [os.path.join(FOUNDATION["out_dir"], "manifest.json")]
     outputs = [results("tables", f"table{n}.{suffix}") for n in TABLES for suffix in ("csv", "md", "tex", "html")]
     outputs += plot_files()
     outputs += [results("findings.md"), results("findings.html"), results("study"), results("benchmark_summary.html")]

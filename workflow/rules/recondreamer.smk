@@ -64,7 +64,7 @@ rule train_recondreamer_truth:
 rule generate_dd4d:
     input:
         scene=results("scenes", "{segment}"),
-        world_model=results("models", "world_model_dd2.pt"),
+        world_model=model_path(config, "world_model", "dd2"),
     output:
         directory(results("dd4d_generated", "{segment}", "{trajectory}")),
     params:

@@ -50,7 +50,8 @@ rule train_restorer:
     output:
         results("models", "restorer_{restorer}.pt"),
     params:
-        steps=lambda wildcards: option("--steps", config["restorer"]["backbone_steps"].get(wildcards.restorer) or config["restorer"]["steps"]),
+        steps=option("--steps", config["restorer"]["steps"]),
+        crop=option("--crop", None if config["restorer"]["crop"] is None else " ".join(map(str, config["restorer"]["crop"]))),
         options=" ".join(
             option(flag, config["restorer"][key])
             for flag, key in (
@@ -73,7 +74,7 @@ rule train_restorer:
         benchmark_file("train_restorer", "{restorer}")
     shell:
         "recondreamer train-restorer --arch {wildcards.restorer} --world-model {input.world_model} "
-        "--pairs {input.pairs} --out {output} {params.steps} {params.options} {params.mask} --threads {threads} > {log} 2>&1"
+        "--pairs {input.pairs} --out {output} {params.steps} {params.crop} {params.options} {params.mask} --threads {threads} > {log} 2>&1"
 
 
 rule train_refiner:
