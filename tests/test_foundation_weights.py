@@ -241,3 +241,29 @@ class TestFlicker:
         assert flicker(noisy, truth) > 5.0
         # A constant offset does not flicker.
         assert flicker(np.clip(truth.astype(int) // 2 + 10, 0, 255).astype(np.uint8), truth // 2) == 0.0
+
+
+class TestPackaging:
+    def test_a_regular_install_carries_and_finds_the_shipped_set(self, tmp_path):
+        """A wheel holds every file of recondreamer/weights/, and the installed package finds them."""
+        import subprocess
+        import sys
+        import zipfile
+        from pathlib import Path
+
+        repo = Path(__file__).resolve().parents[1]
+        build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(repo), "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path / "wheel")],
+                               check=False, capture_output=True, text=True, timeout=300)
+        assert build.returncode == 0, build.stderr
+        wheel = next((tmp_path / "wheel").glob("recondreamer-*.whl"))
+        shipped = {p.relative_to(repo).as_posix() for p in (repo / "recondreamer" / "weights").iterdir() if p.is_file() and p.suffix != ".pyc"}
+        assert shipped and shipped <= set(zipfile.ZipFile(wheel).namelist())
+        install = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(tmp_path / "site"), str(wheel)],
+                                 check=False, capture_output=True, text=True, timeout=300)
+        assert install.returncode == 0, install.stderr
+        found = subprocess.run([sys.executable, "-c", "from recondreamer.foundation.weights import shipped_weights_dir; print(shipped_weights_dir())"],
+                               check=False, capture_output=True, text=True, cwd=tmp_path, env={"PYTHONPATH": str(tmp_path / "site"), "PATH": "/usr/bin:/bin"})
+        assert found.returncode == 0, found.stderr
+        folder = Path(found.stdout.strip())
+        assert folder == tmp_path / "site" / "recondreamer" / "weights"
+        assert {p.name for p in folder.iterdir() if p.is_file()} >= {Path(name).name for name in shipped}
