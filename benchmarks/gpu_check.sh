@@ -14,8 +14,7 @@
 #   raster    benchmarks/rasterizer.py: the C++ CPU kernel against the gsplat backend
 #   capacity  (not in the default list; issue 6) does a wider DriveRestorer trained longer gain more on
 #             held-out pairs? Street reconstructions (CPU, one thread each, in parallel) and restoration
-#             pairs of CAP_TRAIN corpus scenes and of corpus-021/022 (held out, as in
-#             benchmarks/restorer_gate.sh), then three dd2 -> dd2_mask models on DEVICE: the CPU recipe
+#             pairs of CAP_TRAIN corpus scenes and of corpus-021/022 (held out), then three dd2 -> dd2_mask models on DEVICE: the CPU recipe
 #             (default width, 1000 + 1000 steps), the default width trained longer, and a wide UNet
 #             (CAP_WIDE channels) trained as long; the gate's held-out table for all three. Autoencoder:
 #             CAP_AUTOENCODER (default results/restorer-dev/ae8_5000.pt; trained here when missing)
@@ -31,8 +30,8 @@
 #   the preset's) with small step counts. Capacity: CAP_TRAIN (8 scenes), CAP_WIDE ("64 128 256"),
 #   CAP_WM_STEPS / CAP_RESTORER_STEPS of the CPU recipe (1000 1000), CAP_LONG_WM_STEPS /
 #   CAP_LONG_RESTORER_STEPS of the longer runs (2000 1500), CAP_TIMESTEP_POWER of the restorers
-#   (3, as the session-4 table; 50 is train-restorer's default since session 7), CAP_CROP of the restorers'
-#   training latents ("24 32", the default crop; "0 0" = whole latents, better on CPU since session 8),
+#   (3; train-restorer's default is 50, docs/restorer.md), CAP_CROP of the restorers'
+#   training latents ("24 32", the default crop; "0 0" = whole latents, better on CPU: docs/restorer.md),
 #   CAP_PIXEL_LOSS_WEIGHT (0; see train-restorer --pixel-loss-weight), CAP_JOBS (parallel CPU jobs, nproc),
 #   CAP_TRAJECTORIES of the pairs ("original shift@3 shift@6 lane_change"), CAP_CORPUS (the first 20 corpus
 #   scenes pretrain the world models).

@@ -9,7 +9,8 @@ equals running the refiner with that ``max_correction`` (a clamp of the correcti
 rounding to whole levels); the script checks this on the first clip with a bound of 12 and prints
 the largest difference in grey levels.
 
-Example (the session-24 choice of the default bound, on scenes neither network trained on)::
+Example (the run that chose the default bound of 12 grey levels, on 4 scenes neither network trained
+on; docs/restorer.md)::
 
     python benchmarks/refiner_bound.py --restorer results/restorer-dev/s23/stage4_ref.pt \\
         --pairs results/restorer-dev/pairs-train/corpus-09[5-8]__street*.npz --bounds 2 4 8 12 16 24 32 64

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# ReconDreamer with a restorer trained outside the workflow (benchmarks/restorer_gate.sh), at the
+# ReconDreamer with a restorer trained outside the workflow (e.g. a weight set's), at the
 # size of a finished run, without retraining anything else: the baseline runs, scenes and
 # evaluation models of SOURCE are reused, and each ReconDreamer run is trained and evaluated with the
 # commands that config/full.yaml's rules use. Metric files land in the workflow's layout under OUT,

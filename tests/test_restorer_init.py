@@ -150,7 +150,7 @@ def test_a_resume_file_written_before_a_config_field_existed_resumes_when_the_jo
         extra = {key: value for key, value in state.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
         save_checkpoint(state_file, "training_state", state["arch"], {**state["config"], "unet": unet_config}, state["state"], **extra)
 
-    # As session 13's resume files were: written before UNetConfig.blocks_per_level existed.
+    # A resume file written before UNetConfig.blocks_per_level existed.
     rewrite({key: value for key, value in state["config"]["unet"].items() if key != "blocks_per_level"})
     with caplog.at_level("INFO", logger="recondreamer.restorer.training"):
         _train(world, tmp_path / "r.pt", checkpoint_every=1)

@@ -78,7 +78,7 @@ def test_the_output_norm_works_per_pixel_so_crops_match_whole_frames():
 
 
 def test_features_drifting_before_the_last_conv_do_not_switch_the_correction_off():
-    """Session 21's dead refiner: features before its last SiLU around -1000, output = input, no gradient."""
+    """A dead refiner: features before its last SiLU around -1000, output = input, no gradient."""
     torch.manual_seed(0)
     restored, degraded, structure = random_frames(1, 0), random_frames(1, 1), torch.rand(1, len(STRUCTURE), H, W)
     for output_norm in (True, False):
@@ -119,7 +119,7 @@ def test_refiners_written_before_the_output_norm_and_the_bound_load_without_them
     torch.manual_seed(0)
     old = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=False, max_correction=0.0), 0))
     config = config_to_dict(old.config)
-    del config["output_norm"], config["max_correction"]  # what checkpoints written before session 22 hold
+    del config["output_norm"], config["max_correction"]  # what checkpoints written before these fields existed hold
     loaded = refiner_from_payload({"config": config, "structure_channels": 0, "state": old.state_dict()})
     assert not loaded.config.output_norm and loaded.config.max_correction == 0.0
     restored, degraded = random_frames(1, 0), random_frames(1, 1)

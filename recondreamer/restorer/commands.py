@@ -114,7 +114,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
     p.add_argument("--no-structure", action="store_true", help="do not show the refiner the structure maps (dd2 archs)")
     p.add_argument("--no-output-norm", action="store_true",
-                   help="build the refiner without the channel norm before its last conv, as refiners before session 22 were")
+                   help="build the refiner without the channel norm before its last conv (as checkpoints without an output_norm entry load)")
     p.add_argument("--max-correction", type=float, default=None,
                    help="largest change the refiner may make to a pixel, in grey levels of 255 (default 12; 0: unbounded)")
     _add_threads_option(p)

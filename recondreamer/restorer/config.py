@@ -160,13 +160,14 @@ class RefinerConfig:
     # refiner learns small edge corrections (1-2 levels on average) from 64-pixel crops; on a flat
     # surface filling much of a frame, unlike its crops, an unbounded one brightened a truck's side
     # to up to 159 levels from the truth and cost 5 dB. Clipping that refiner's correction at 12 levels
-    # scored best of 2-64 and none on 4 scenes neither it nor its restorer saw (docs/restorer.md, session 24).
+    # scored best of bounds 2-64 and none on 4 scenes neither it nor its restorer trained on
+    # (benchmarks/refiner_bound.py, docs/restorer.md).
     max_correction: float = 12.0
     steps: int = 3000
     batch_size: int = 8  # crops per step
     crop: int = 64  # crop side in pixels
     # 1e-3 trained two 3000-step refiners but sent a 6000-step one to a loss spike (step 1200) after
-    # which it returned its input unchanged; 5e-4 trained that job well (docs/restorer.md, session 18).
+    # which it returned its input unchanged; 5e-4 trained that job well (docs/restorer.md).
     learning_rate: float = 5e-4
     warmup_steps: int = 100
     ema_decay: float = 0.0
@@ -176,16 +177,16 @@ class RefinerConfig:
 
 
 # What `train-restorer` uses unless told otherwise (docs/restorer.md): one DDIM step with residual
-# decoding when restoring (4 steps scored ~1 dB lower on held-out pairs, session 3), and training
+# decoding when restoring (4 steps scored ~1 dB lower on held-out pairs), and training
 # timesteps with density ~ t^49, 95% of them above t = 940: the restorer learns the one step it
-# samples (t = 999). Against power 3 this gained +0.33 vs +0.13 dB at 1000 steps and +0.84 vs
-# +0.62 dB at 3000 (session 7); later DDIM steps are then barely trained.
+# samples (t = 999). Against power 3 this gained +0.33 vs +0.13 dB on held-out pairs at 1000 steps
+# and +0.84 vs +0.62 dB at 3000; later DDIM steps are then barely trained.
 RESTORER_TIMESTEP_POWER = 50.0
 RESTORER_SAMPLE_STEPS = 1
 RESTORER_RESIDUAL_DECODING = True
 # Four noise draws averaged per window: +0.06-0.07 dB on held-out pairs over one draw, and less
-# flicker, for 1.5-1.6x the restore time (session 23; the autoencoder, run once, costs more than
-# the UNet passes).
+# flicker, for 1.5-1.6x the restore time (the autoencoder, run once, costs more than the UNet
+# passes).
 RESTORER_SAMPLES = 4
 
 

@@ -2,7 +2,7 @@
 
 The diffusion restorer works on latents four times smaller than the frames, and its output
 reaches pixels through the frozen decoder (with residual decoding, as a decoded change added to
-the render). Most of what a render gets wrong sits on edges (docs/restorer.md, session 7), i.e.
+the render). Most of what a render gets wrong sits on edges (benchmarks/pairs_error.py), i.e.
 at the scale the latents blur. The refiner is a small per-frame convolutional network that sees
 the restorer's output, the degraded render and the structure maps at full resolution and
 predicts a correction to the restorer's output; with ``temporal_neighbours`` it also sees the
@@ -34,8 +34,9 @@ class PixelChannelNorm(nn.Module):
     Unlike group norm it uses no spatial statistics, so a refiner trained on crops computes the
     same on whole frames. Before the refiner's last SiLU it keeps the features at unit scale:
     without it (``RefinerConfig.output_norm`` False) a refiner could drift into SiLU's flat
-    part, where its correction and every gradient vanish (session 21's dead refiner: features
-    around -1000 there). It has no learned scale or shift, which training could drive there instead.
+    part, where its correction and every gradient vanish (a refiner trained without it ended with
+    features around -1000 there and returned its input unchanged). It has no learned scale or shift,
+    which training could drive there instead.
     """
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:  # (N,C,H,W) -> (N,C,H,W)

@@ -664,8 +664,8 @@ def refined_batch_mse(refiner: PixelRefiner, batch: dict) -> torch.Tensor:  # sc
 
 REFINER_CHECK_BATCHES = 16  # fixed batches on which a finished refiner is compared with the identity
 # A refiner that lowers the identity's loss by less than this fraction (0.04 dB) is reported as doing
-# nothing: session 21's dead refiner scored 0.02% above the identity; the +0.2-0.4 dB of the refiners
-# that helped (sessions 18-19) are 5-9% less squared error.
+# nothing: a dead refiner (features in SiLU's flat part, correction switched off) scored 0.02% above
+# the identity; refiners that gained +0.2-0.4 dB on held-out pairs had 5-9% less squared error.
 REFINER_MIN_IMPROVEMENT = 0.01
 
 
@@ -673,7 +673,7 @@ REFINER_MIN_IMPROVEMENT = 0.01
 def refiner_check_losses(refiner: PixelRefiner, examples: list[RefinerExample], config: RefinerConfig) -> tuple[float, float]:
     """(refined, identity): the pixel MSE of the refiner's output and of the restorer's output alone
     on ``REFINER_CHECK_BATCHES`` batches drawn with a fixed seed. ``train_refiner`` warns when the first is
-    not ``REFINER_MIN_IMPROVEMENT`` below the second (session 21 saw a refiner end with its correction switched off)."""
+    not ``REFINER_MIN_IMPROVEMENT`` below the second (a refiner can end with its correction switched off)."""
     rng = np.random.default_rng(config.seed + 1)
     device = module_device(refiner)
     refined, identity = [], []
