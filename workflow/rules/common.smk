@@ -59,7 +59,7 @@ def _check_config():
         seeds = set(range(corpus["first_seed"], corpus["first_seed"] + corpus["num_scenes"]))
         evaluation_seeds = set(config["synthetic"]["segments"].values()) | set(FOUNDATION["reserved_seeds"])
         clash = sorted(seeds & evaluation_seeds)
-        if clash:
+        if clash and WEIGHTS_DIR is None:  # with a weight set the corpus is the set's (checked against its manifest)
             problems.append(f"synthetic.corpus seeds overlap the evaluation seeds (segments, foundation.reserved_seeds) {clash}")
         if TARGET == "foundation":
             clash = sorted(set(FOUNDATION["gate_seeds"]) & (seeds | evaluation_seeds))
@@ -264,6 +264,20 @@ def pair_dirs():
         dirs += [results("pairs", "segments", s) for s in SEGMENTS]
     dirs += [results("pairs", "corpus", c) for c in PAIR_CORPUS_SCENES]
     return dirs
+
+
+# ------------------------------------------------------------------------------------ foundation
+
+FOUNDATION_RESTORERS = list(EXPERIMENT["restorer_backbones"])
+
+
+def published_files():
+    """weight-set file name -> the file this DAG trained."""
+    files = {"autoencoder.pt": results("models", "autoencoder.pt")}
+    files.update({f"world_model_{arch}.pt": results("models", f"world_model_{arch}.pt") for arch in sorted({WORLD_MODEL_OF[r] for r in FOUNDATION_RESTORERS})})
+    files.update({f"restorer_{arch}.pt": results("models", f"restorer_{arch}.pt") for arch in FOUNDATION_RESTORERS})
+    files.update({name: results("eval_models", name) for name in ("vehicle_detector.pt", "lane_segmenter.pt", "fid_features.pt")})
+    return files
 
 
 # ------------------------------------------------------------------------------------ preference (table 3)

@@ -67,9 +67,6 @@ rule make_gate_pairs:
         "--trajectories {params.trajectories} --threads {threads} > {log} 2>&1"
 
 
-FOUNDATION_RESTORERS = list(EXPERIMENT["restorer_backbones"])
-
-
 rule foundation_gates:
     input:
         restorers=[results("models", f"restorer_{arch}.pt") for arch in FOUNDATION_RESTORERS],
@@ -93,15 +90,6 @@ rule foundation_gates:
         "recondreamer foundation-gates --restorer {params.restorers} --pairs {input.pairs} --autoencoder {input.autoencoder} "
         "--gate-scenes {input.scenes} --eval-metrics {input.eval_metrics} --gate-seeds {params.gate_seeds} "
         "--corpus-seeds {params.corpus_seeds} --out {output.gates} --threads {threads} > {log} 2>&1"
-
-
-def published_files():
-    """weight-set file name -> the file this DAG trained."""
-    files = {"autoencoder.pt": results("models", "autoencoder.pt")}
-    files.update({f"world_model_{arch}.pt": results("models", f"world_model_{arch}.pt") for arch in sorted({WORLD_MODEL_OF[r] for r in FOUNDATION_RESTORERS})})
-    files.update({f"restorer_{arch}.pt": results("models", f"restorer_{arch}.pt") for arch in FOUNDATION_RESTORERS})
-    files.update({name: results("eval_models", name) for name in ("vehicle_detector.pt", "lane_segmenter.pt", "fid_features.pt")})
-    return files
 
 
 rule publish_weights:
