@@ -49,6 +49,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def check_common_arguments(args: argparse.Namespace) -> None:
+    """Options many sub-commands share, checked in one place: torch's thread count must be
+    positive (0 or a negative number would mean 'all cores' or crash inside torch) and seeds
+    non-negative (numpy's generators refuse negative seeds)."""
+    threads = getattr(args, "threads", None)
+    if threads is not None and threads < 1:
+        raise RecondreamerError(f"--threads {threads}: must be a positive integer")
+    seed = getattr(args, "seed", None)
+    if isinstance(seed, int) and seed < 0:
+        raise RecondreamerError(f"--seed {seed}: must be a non-negative integer")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -59,6 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         datefmt="%H:%M:%S",
     )
     try:
+        check_common_arguments(args)
         return int(args.func(args) or 0)
     except RecondreamerError as error:
         print(f"recondreamer {args.command}: error: {error}", file=sys.stderr)

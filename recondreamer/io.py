@@ -2,7 +2,10 @@
 
 Files are written to a temporary sibling and renamed into place (``os.replace`` is atomic on
 POSIX within one file system). Directories are built under a temporary sibling name and renamed
-when complete; an existing destination is replaced only after the new one is fully written.
+when complete; an existing destination is replaced only after the new one is fully written, and
+only when it is an earlier output of the same kind (each output directory carries a small
+``.recondreamer-output`` marker naming its kind): an ``--out`` that names an unrelated folder, a
+plain file, an input or a folder holding inputs is refused before anything is written.
 """
 
 from __future__ import annotations
@@ -14,6 +17,14 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+from recondreamer.errors import RecondreamerError
+
+OUTPUT_MARKER = ".recondreamer-output"  # inside every directory atomic_directory writes: its kind
+
+
+class OutputPathError(RecondreamerError):
+    """An output path names something that is not an earlier output of the same kind."""
 
 
 def _umask() -> int:
@@ -57,18 +68,48 @@ def write_json_atomic(path: str | os.PathLike, obj, indent: int = 2) -> None:
     write_text_atomic(path, json.dumps(obj, indent=indent, sort_keys=False) + "\n")
 
 
+def output_kind(path: str | os.PathLike) -> str | None:
+    """The kind of output a directory written by ``atomic_directory`` holds (None: not one)."""
+    marker = Path(path) / OUTPUT_MARKER
+    try:
+        return marker.read_text().strip() if marker.is_file() else None
+    except OSError:
+        return None
+
+
+def check_replaceable(path: str | os.PathLike, kind: str) -> None:
+    """Raise unless ``path`` is absent, an empty directory, or an earlier ``kind`` output."""
+    path = Path(path)
+    if not (path.exists() or path.is_symlink()):
+        return
+    if path.is_symlink() or not path.is_dir():
+        raise OutputPathError(f"{path}: exists and is not a directory; refusing to replace it with a {kind} (choose another output path)")
+    if path.resolve() == Path.cwd().resolve() or path.resolve() in Path.cwd().resolve().parents:
+        raise OutputPathError(f"{path}: is the working directory or one of its parents; refusing to replace it with a {kind}")
+    found = output_kind(path)
+    if found == kind or not any(path.iterdir()):
+        return
+    what = f"a {found} output" if found else f"not marked as a recondreamer output (no {OUTPUT_MARKER})"
+    raise OutputPathError(f"{path}: exists and is {what}; refusing to replace it with a {kind} (remove it or choose another output path)")
+
+
 @contextlib.contextmanager
-def atomic_directory(path: str | os.PathLike) -> Iterator[Path]:
+def atomic_directory(path: str | os.PathLike, kind: str) -> Iterator[Path]:
     """Yield an empty temporary directory; on success it replaces ``path`` in one rename.
 
-    On failure the temporary directory is removed and an existing ``path`` is left untouched.
+    ``kind`` names what the directory holds (``scene``, ``renders``, ...). An existing ``path``
+    is replaced only when it is an earlier output of the same kind or empty (``check_replaceable``,
+    before anything is written). On failure the temporary directory is removed and an existing
+    ``path`` is left untouched.
     """
     path = Path(path)
+    check_replaceable(path, kind)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     tmp.chmod(_default_mode(is_dir=True))
     try:
         yield tmp
+        (tmp / OUTPUT_MARKER).write_text(kind + "\n")
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
             os.replace(path, old / path.name)

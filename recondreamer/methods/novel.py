@@ -56,7 +56,7 @@ def preview_indices(num_frames: int, count: int) -> list[int]:
 def save_video(folder: str | Path, video: NovelVideo, inputs: np.ndarray, preview: int = 3) -> Path:
     """Write the video folder atomically; ``inputs`` (T,H,W,3) are what the model was given."""
     folder = Path(folder)
-    with atomic_directory(folder) as tmp:
+    with atomic_directory(folder, "novel-trajectory video") as tmp:
         np.savez(tmp / FRAMES_FILE, poses=video.poses, timestamps=video.timestamps, supervised=video.frames)
         (tmp / "rendered").mkdir()
         (tmp / "restored").mkdir()

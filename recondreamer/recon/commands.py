@@ -146,11 +146,13 @@ def run_render(args: argparse.Namespace) -> int:
     import torch
 
     from recondreamer.errors import RecondreamerError
+    from recondreamer.io import check_replaceable
     from recondreamer.recon.checkpoint import RUN_JSON, load_model
     from recondreamer.recon.render import render_to_directories
     from recondreamer.restorer.device import resolve_device
     from recondreamer.scene import load_scene
 
+    check_replaceable(args.out, "renders")
     if args.threads:
         torch.set_num_threads(args.threads)
     device = resolve_device(args.device, "--device")

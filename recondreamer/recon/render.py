@@ -58,7 +58,7 @@ def write_frames(
     out_dir: str | Path, images: np.ndarray, depths: np.ndarray | None = None
 ) -> Path:
     """Write ``{t:03d}.png`` (and ``{t:03d}_depth.npy``) into ``out_dir`` as one atomic directory."""
-    with atomic_directory(out_dir) as tmp:
+    with atomic_directory(out_dir, "renders") as tmp:
         for t, image in enumerate(images):
             Image.fromarray(image).save(tmp / f"{t:03d}.png")
             if depths is not None:

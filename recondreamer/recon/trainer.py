@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError
-from recondreamer.io import write_json_atomic
+from recondreamer.io import OutputPathError, write_json_atomic
 from recondreamer.recon.base import GaussianSceneModel
 from recondreamer.recon.checkpoint import (
     CHECKPOINT_NAME,
@@ -76,6 +76,7 @@ class Trainer:
         self.config = config
         self.run_dir = Path(run_dir) if run_dir is not None else None
         self.scene_path = scene_path
+        self.scene_fingerprint: str | None = None  # Scene.fingerprint() of a scene read from disk (compared on resume)
         self.callbacks = list(callbacks)
         self.optimizer = build_optimizer(model, config.optim)
         self.density = DensityController(
@@ -151,6 +152,8 @@ class Trainer:
         window: list[dict[str, float]] = []
         file_handler = self._attach_log()
         try:
+            if 0 < self.step < total:
+                logger.info("resumed from %s at step %d/%d", CHECKPOINT_NAME, self.step, total)  # marks the resume in train.log
             if self.step >= total:
                 logger.info("already trained %d/%d steps", self.step, total)
             while self.step < total:
@@ -221,7 +224,9 @@ class Trainer:
 
     # --- persistence ----------------------------------------------------------------------
     def _record(self, kind: str) -> dict:
-        return model_record(kind, self.model, self.config, self.step, self.scene_path)
+        record = model_record(kind, self.model, self.config, self.step, self.scene_path)
+        record["scene_fingerprint"] = self.scene_fingerprint
+        return record
 
     def save_checkpoint(self) -> None:
         record = self._record("checkpoint")
@@ -281,6 +286,9 @@ def train_scene(
     scene_path = (
         str(Path(scene.path).resolve()) if getattr(scene, "path", None) else None
     )
+    if run_dir is not None and Path(run_dir).exists() and not Path(run_dir).is_dir():
+        raise OutputPathError(f"{run_dir}: exists and is not a directory; choose another --out directory for the run")
+    fingerprint = scene.fingerprint() if scene_path is not None and hasattr(scene, "fingerprint") else None
     checkpoint = Path(run_dir) / CHECKPOINT_NAME if run_dir is not None else None
     if resume and checkpoint is not None and checkpoint.exists():
         record = read_record(checkpoint)
@@ -289,6 +297,7 @@ def train_scene(
             for what, ours, theirs in (
                 ("model type", config.model, record["model_type"]),
                 ("scene id", scene.scene_id, record["scene_id"]),
+                ("scene content (fingerprint)", fingerprint, record.get("scene_fingerprint")),
                 ("config", to_dict(config), record["config"]),
             )
             if _normalized(ours) != _normalized(theirs)
@@ -300,6 +309,7 @@ def train_scene(
             )
         model = model_from_record(record)
         trainer = Trainer(model, training_set, config, run_dir, scene_path, callbacks)
+        trainer.scene_fingerprint = fingerprint
         trainer.load_checkpoint(record)
         logger.info(
             "resuming %s on %s from step %d", config.model, scene.scene_id, trainer.step
@@ -310,6 +320,7 @@ def train_scene(
             scene, config, np.random.default_rng(config.seed)
         )
         trainer = Trainer(model, training_set, config, run_dir, scene_path, callbacks)
+        trainer.scene_fingerprint = fingerprint
         logger.info(
             "training %s on %s: %d views %s, %d initial Gaussians, %d iterations",
             config.model,

@@ -156,7 +156,7 @@ def _add_threads_option(p: argparse.ArgumentParser) -> None:
 def _set_threads(args: argparse.Namespace) -> None:
     import torch
 
-    torch.set_num_threads(max(1, args.threads))
+    torch.set_num_threads(args.threads)  # positive: checked by the command line
 
 
 def _add_device_option(p: argparse.ArgumentParser) -> None:
@@ -391,9 +391,11 @@ def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
 
 def run_restore(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
+    from recondreamer.io import check_replaceable
     from recondreamer.restorer.frames_io import read_frames, write_frames
     from recondreamer.restorer.inference import load_restorer, restore_clip
 
+    check_replaceable(args.out, "frames")
     _set_threads(args)
     restorer = load_restorer(args.restorer, _device(args))
     renders = read_frames(args.renders, args.trajectory)
@@ -413,9 +415,11 @@ def run_restore(args: argparse.Namespace) -> int:
 
 def run_dd4d_generate(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
+    from recondreamer.io import check_replaceable
     from recondreamer.restorer.frames_io import write_frames
     from recondreamer.restorer.inference import generate_clip, load_world_model
 
+    check_replaceable(args.out, "frames")
     _set_threads(args)
     world = load_world_model(args.world_model, _device(args))
     if world.arch != "dd2":

@@ -44,7 +44,7 @@ def read_frames(path: str | os.PathLike, trajectory: str | None = None) -> np.nd
 
 def write_frames(path: str | os.PathLike, frames: np.ndarray, info: dict | None = None) -> None:
     """Write ``{t:03d}.png`` frames (and ``info.json``) into a folder, atomically."""
-    with atomic_directory(path) as tmp:
+    with atomic_directory(path, "frames") as tmp:
         for t, frame in enumerate(frames):
             Image.fromarray(frame).save(tmp / f"{t:03d}.png", compress_level=1)
         if info is not None:

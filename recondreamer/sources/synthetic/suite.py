@@ -107,9 +107,11 @@ def is_current(job: SuiteJob) -> bool:
 
 def build_scene(job: SuiteJob) -> float:
     """Generate and write one scene; returns the seconds it took."""
+    from recondreamer.io import check_replaceable
     from recondreamer.scene import write_scene
     from recondreamer.sources.synthetic.segment import generate_segment
 
+    check_replaceable(job.out, "scene")
     started = clock.perf_counter()
     write_scene(job.out, generate_segment(job.seed, job.preset, scene_id=job.name))
     return clock.perf_counter() - started

@@ -20,6 +20,7 @@ from google.protobuf.message import DecodeError
 from PIL import Image
 
 from recondreamer.errors import ConversionError
+from recondreamer.io import check_replaceable
 from recondreamer.scene.types import Box, FrameChannels, Polyline, SceneData
 from recondreamer.sources.waymo import geometry, schema
 from recondreamer.sources.waymo.tfrecord import iter_records
@@ -85,6 +86,7 @@ def convert_waymo(
         raise ConversionError(f"--start must be >= 0, got {start}")
     if end is not None and end < (start or 0):
         raise ConversionError(f"--end ({end}) must not be before --start ({start or 0})")
+    check_replaceable(out, "scene")
     first = start or 0
     selection = _read_selection(tfrecord, first, end, camera)
     last = first + len(selection.timestamps_micros) - 1
@@ -111,6 +113,8 @@ def _read_selection(path: Path, first: int, end: int | None, camera: str) -> _Se
                     log.info("%s: read %d frames (record %d)", path.name, done, index)
         if end is not None and index == end:
             break
+    if num_records == 0:
+        raise ConversionError(f"{path}: holds no records ({path.stat().st_size} bytes): not a Waymo Open Dataset segment (an interrupted download?)")
     if num_records <= first or (end is not None and num_records <= end):
         requested = f"{first}..{end}" if end is not None else f"{first}..(end)"
         raise ConversionError(

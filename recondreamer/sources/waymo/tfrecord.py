@@ -48,6 +48,8 @@ def iter_records(path: str | os.PathLike) -> Iterator[bytes]:
     is missing, is not a TFRecord file, is truncated or fails a checksum.
     """
     path = Path(path)
+    if path.is_dir():
+        raise TFRecordError(f"{path}: is a folder; give one segment's .tfrecord file")
     if not path.is_file():
         raise TFRecordError(f"{path}: no such file")
     file_size = path.stat().st_size

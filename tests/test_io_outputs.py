@@ -1,0 +1,170 @@
+"""Output paths are safe: an --out that names something other than an earlier output of the same
+command is refused before anything is written, options shared by many commands are checked in one
+place, and a run resumes only on the scene it started on."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from recondreamer.cli import main
+from recondreamer.io import OUTPUT_MARKER, OutputPathError, atomic_directory, output_kind
+
+TINY_SCENE = ["--preset", "quick", "--frames", "3", "--width", "64", "--height", "48", "--no-novel"]
+
+
+def synth(out, seed=5, *extra):
+    return main(["synth", "--seed", str(seed), "--out", str(out), *TINY_SCENE, *extra])
+
+
+class TestAtomicDirectory:
+    def test_marks_its_kind_and_replaces_an_output_of_the_same_kind(self, tmp_path):
+        out = tmp_path / "renders"
+        with atomic_directory(out, "renders") as tmp:
+            (tmp / "a.png").write_bytes(b"1")
+        assert output_kind(out) == "renders" and (out / OUTPUT_MARKER).is_file()
+        with atomic_directory(out, "renders") as tmp:
+            (tmp / "b.png").write_bytes(b"2")
+        assert sorted(p.name for p in out.iterdir()) == [OUTPUT_MARKER, "b.png"]
+
+    def test_an_empty_folder_may_be_filled(self, tmp_path):
+        (tmp_path / "empty").mkdir()
+        with atomic_directory(tmp_path / "empty", "frames") as tmp:
+            (tmp / "000.png").write_bytes(b"1")
+        assert (tmp_path / "empty" / "000.png").is_file()
+
+    @pytest.mark.parametrize("existing", ["file", "folder", "other kind", "symlink"])
+    def test_refuses_anything_else_and_writes_nothing(self, tmp_path, existing):
+        out = tmp_path / "out"
+        if existing == "file":
+            out.write_text("keep")
+        elif existing == "symlink":
+            (tmp_path / "target").mkdir()
+            out.symlink_to(tmp_path / "target")
+        else:
+            out.mkdir()
+            (out / "keep.txt").write_text("keep")
+            if existing == "other kind":
+                (out / OUTPUT_MARKER).write_text("scene\n")
+        before = sorted(p.name for p in tmp_path.iterdir())
+        with pytest.raises(OutputPathError, match="refusing to replace it with a renders"):
+            with atomic_directory(out, "renders"):
+                pytest.fail("the block must not run")
+        assert sorted(p.name for p in tmp_path.iterdir()) == before  # no temporary folder left
+        if existing in ("folder", "other kind"):
+            assert (out / "keep.txt").read_text() == "keep"
+        if existing == "file":
+            assert out.read_text() == "keep"
+
+
+class TestOutPaths:
+    def test_a_second_synth_replaces_its_own_scene(self, tmp_path):
+        assert synth(tmp_path / "scene") == 0
+        assert synth(tmp_path / "scene", 6) == 0
+        assert output_kind(tmp_path / "scene") == "scene"
+
+    def test_synth_refuses_a_file_an_unrelated_folder_and_the_working_directory(self, tmp_path, capsys, monkeypatch):
+        (tmp_path / "notes.txt").write_text("keep")
+        (tmp_path / "project").mkdir()
+        (tmp_path / "project" / "data.csv").write_text("keep")
+        assert synth(tmp_path / "notes.txt") == 1
+        assert "notes.txt: exists and is not a directory" in capsys.readouterr().err
+        assert synth(tmp_path / "project") == 1
+        assert "project: exists and is not marked as a recondreamer output" in capsys.readouterr().err
+        monkeypatch.chdir(tmp_path / "project")
+        assert synth(".") == 1
+        assert "is the working directory" in capsys.readouterr().err
+        assert (tmp_path / "notes.txt").read_text() == "keep" and (tmp_path / "project" / "data.csv").read_text() == "keep"
+        assert sorted(os.listdir(tmp_path / "project")) == ["data.csv"]  # no hidden temporary folder
+
+    def test_convert_waymo_refuses_its_input_and_the_folder_holding_it(self, tmp_path, capsys):
+        record = tmp_path / "segment.tfrecord"
+        record.write_bytes(b"not read: the output is checked first")
+        for out in (record, tmp_path):
+            assert main(["convert-waymo", str(record), "--out", str(out)]) == 1
+            assert "refusing to replace it with a scene" in capsys.readouterr().err
+        assert record.read_bytes() == b"not read: the output is checked first"
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["segment.tfrecord"]
+
+    def test_render_refuses_the_scene_it_reads(self, tmp_path, capsys):
+        scene = tmp_path / "scene"
+        assert synth(scene) == 0
+        run = tmp_path / "run"
+        assert main(["train-recon", "--scene", str(scene), "--model", "street", "--preset", "quick", "--iterations", "2", "--out", str(run)]) == 0
+        capsys.readouterr()
+        assert main(["render", "--run", str(run), "--trajectory", "shift@3", "--out", str(scene)]) == 1
+        assert "exists and is a scene output; refusing to replace it with a renders" in capsys.readouterr().err
+        assert (scene / "scene.json").is_file()
+
+
+class TestSharedOptions:
+    @pytest.mark.parametrize(("option", "value", "message"), [("--threads", "0", "--threads 0: must be a positive integer"),
+                                                               ("--threads", "-1", "--threads -1: must be a positive integer"),
+                                                               ("--seed", "-1", "--seed -1: must be a non-negative integer")])
+    def test_train_recon_names_the_option(self, tmp_path, capsys, option, value, message):
+        scene = tmp_path / "scene"
+        assert synth(scene) == 0
+        capsys.readouterr()
+        arguments = {"--threads": "1", "--seed": "0", option: value}
+        command = ["train-recon", "--scene", str(scene), "--model", "street", "--preset", "quick", "--iterations", "2", "--out", str(tmp_path / "run")]
+        for name, given in arguments.items():
+            command += [name, given]
+        assert main(command) == 1
+        assert message in capsys.readouterr().err
+        assert not (tmp_path / "run").exists()
+
+    def test_restore_refuses_threads_zero(self, tmp_path, capsys):
+        assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--renders", str(tmp_path), "--scene", str(tmp_path),
+                     "--trajectory", "shift@3", "--out", str(tmp_path / "out"), "--threads", "0"]) == 1
+        assert "--threads 0: must be a positive integer" in capsys.readouterr().err
+
+
+class TestRunResume:
+    def test_train_recon_out_naming_a_file(self, tmp_path, capsys):
+        scene = tmp_path / "scene"
+        assert synth(scene) == 0
+        (tmp_path / "run").write_text("keep")
+        capsys.readouterr()
+        assert main(["train-recon", "--scene", str(scene), "--model", "street", "--preset", "quick", "--iterations", "2", "--out", str(tmp_path / "run")]) == 1
+        assert "run: exists and is not a directory" in capsys.readouterr().err
+        assert (tmp_path / "run").read_text() == "keep"
+
+    def test_a_run_does_not_continue_on_another_scene_with_the_same_id(self, tmp_path, capsys):
+        run = tmp_path / "run"
+        train = ["train-recon", "--model", "street", "--preset", "quick", "--iterations", "2", "--out", str(run)]
+        assert main(["synth", "--seed", "5", "--scene-id", "same", "--out", str(tmp_path / "a"), *TINY_SCENE]) == 0
+        assert main(["synth", "--seed", "6", "--scene-id", "same", "--out", str(tmp_path / "b"), *TINY_SCENE]) == 0
+        assert main([*train, "--scene", str(tmp_path / "a")]) == 0
+        run_json = (run / "run.json").read_text()
+        capsys.readouterr()
+        assert main([*train, "--scene", str(tmp_path / "b")]) == 1
+        assert "differs in scene content (fingerprint)" in capsys.readouterr().err
+        assert (run / "run.json").read_text() == run_json
+        assert main([*train, "--scene", str(tmp_path / "a")]) == 0  # the same scene still resumes
+
+    def test_train_log_marks_a_resume(self, tmp_path):
+        scene = tmp_path / "scene"
+        assert synth(scene) == 0
+        run = tmp_path / "run"
+        train = ["train-recon", "--scene", str(scene), "--model", "street", "--preset", "quick", "--out", str(run)]
+        assert main([*train, "--iterations", "4"]) == 0
+        # The same run asked for more iterations is a different config; a checkpoint mid-way is what a kill leaves.
+        from recondreamer.recon.checkpoint import CHECKPOINT_NAME, read_record, save_record
+
+        record = read_record(run / CHECKPOINT_NAME)
+        record["step"] = 2
+        save_record(run / CHECKPOINT_NAME, record)
+        assert main([*train, "--iterations", "4"]) == 0
+        assert "resumed from checkpoint.pt at step 2/4" in (run / "train.log").read_text()
+
+
+class TestWaymoInputs:
+    def test_an_empty_file_and_a_folder_get_their_own_message(self, tmp_path, capsys):
+        (tmp_path / "empty.tfrecord").write_bytes(b"")
+        assert main(["convert-waymo", str(tmp_path / "empty.tfrecord"), "--out", str(tmp_path / "a")]) == 1
+        assert "empty.tfrecord: holds no records (0 bytes): not a Waymo Open Dataset segment" in capsys.readouterr().err
+        (tmp_path / "segments").mkdir()
+        assert main(["convert-waymo", str(tmp_path / "segments"), "--out", str(tmp_path / "b")]) == 1
+        assert "segments: is a folder; give one segment's .tfrecord file" in capsys.readouterr().err
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["empty.tfrecord", "segments"]
