@@ -211,6 +211,43 @@ class TestPublishedRestorer:
         assert np.array_equal(first, restore_clip(load_restorer(weight_set / "restorer_dd2_mask.pt"), frames, structure, window=4, overlap=1))
 
 
+class TestShippedSet:
+    """The weight set in the repository, as the default config uses it."""
+
+    def test_every_file_verifies_and_loads(self):
+        manifest = verify_weight_set(shipped_weights_dir())
+        from recondreamer.foundation.weights import WEIGHT_FILES
+
+        assert set(manifest["files"]) == {spec.name for spec in WEIGHT_FILES}
+        total = sum(p.stat().st_size for p in shipped_weights_dir().iterdir() if p.is_file())
+        assert total <= 64 * 2**20
+
+    def test_trained_on_no_evaluation_seed_of_the_default_configs(self):
+        import yaml
+        from pathlib import Path
+
+        manifest = read_manifest(shipped_weights_dir())
+        first, last = manifest["corpus"]["seeds"]
+        seen = set(range(first, last + 1)) | set(manifest["gate_scenes"]["seeds"])
+        repo = Path(__file__).resolve().parents[1]
+        default = yaml.safe_load((repo / "config" / "config.yaml").read_text())
+        foundation = yaml.safe_load((repo / "config" / "foundation.yaml").read_text())
+        evaluation = set(default["synthetic"]["segments"].values()) | set(foundation["foundation"]["reserved_seeds"])
+        assert default["foundation"]["weights"] == "shipped"
+        assert not seen & evaluation
+
+    def test_restorer_restores_a_clip_deterministically(self):
+        restorer = load_restorer(shipped_weights_dir() / "restorer_dd2_mask.pt")
+        height, width = restorer.frame_size
+        rng = np.random.default_rng(0)
+        frames = rng.integers(0, 256, size=(5, height, width, 3), dtype=np.uint8)
+        structure = rng.integers(0, 256, size=(5, len(restorer.structure_channels), height, width), dtype=np.uint8)
+        first = restore_clip(restorer, frames, structure, window=4, overlap=1)
+        assert first.shape == frames.shape and first.dtype == np.uint8 and not np.array_equal(first, frames)
+        again = restore_clip(load_restorer(shipped_weights_dir() / "restorer_dd2_mask.pt"), frames, structure, window=4, overlap=1)
+        assert np.array_equal(first, again)
+
+
 class TestModelPaths:
     def config(self, weights, **restorer):
         return {"results_dir": "res", "foundation": {"weights": weights}, "restorer": {"checkpoints": {}, "refiner_steps": 0, **restorer}}

@@ -43,8 +43,9 @@ def job_counts(output: str) -> dict[str, int]:
     return counts
 
 
-def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments: bool, judge: bool, synthetic: bool) -> dict[str, int]:
-    """Jobs per rule derived from the paper's design, independently of the workflow code."""
+def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments: bool, judge: bool, synthetic: bool, foundation: bool = True) -> dict[str, int]:
+    """Jobs per rule derived from the paper's design, independently of the workflow code;
+    ``foundation``: the DAG trains its own foundation models (``foundation.weights: train``)."""
     runs_per_segment = 4 + 3 + 4 + 3 + 4  # baselines, DD4D on 3, ReconDreamer main on 4 backbones, +3 restorers, +4 strides
     runs_per_segment += 1 if synthetic else 0  # table 1's upper bound: the true novel views in the loop
     counts = {
@@ -73,18 +74,29 @@ def expected_counts(segments: int, corpus: int, pair_corpus: int, pair_segments:
         "benchmark_summary": 1,
         "all": 1,
     }
+    if not foundation:  # a weight set brings the corpus-trained models and nothing of the corpus is built
+        for rule in FOUNDATION_RULES:
+            counts[rule] = 0
     counts = {rule: n for rule, n in counts.items() if n}
     counts["total"] = sum(counts.values())
     return counts
 
 
-@pytest.mark.parametrize(("configfile", "scene_preset", "iterations"), [("config/config.yaml", "compact", "--iterations 700"), ("config/full.yaml", "default", None)])
-def test_synthetic_configs_dry_run_job_counts(tmp_path, configfile, scene_preset, iterations):
-    """The default (compact, one hour) and full-size synthetic configs build the same DAG at different sizes."""
+FOUNDATION_RULES = ("synth_corpus_scene", "train_eval_models", "train_autoencoder", "pretrain_world_model", "train_corpus_recon", "make_pairs_segment", "make_pairs_corpus", "train_restorer")
+FOUNDATION_TRAINING = ("train-autoencoder", "pretrain-world-model", "train-restorer", "train-eval-models", "train-refiner", "make-pairs")
+
+
+@pytest.mark.parametrize(("configfile", "scene_preset", "iterations", "shipped"), [("config/config.yaml", "compact", "--iterations 700", True), ("config/full.yaml", "default", None, False)])
+def test_synthetic_configs_dry_run_job_counts(tmp_path, configfile, scene_preset, iterations, shipped):
+    """The default (compact, on the shipped weight set) and full-size (training its own models)
+    synthetic configs build the same experiment DAG at different sizes."""
     root = workflow_copy(tmp_path)
     result = snakemake(root, "-n", "--quiet", "rules", "--configfile", configfile)
     assert result.returncode == 0, result.stderr
-    assert job_counts(result.stdout + result.stderr) == expected_counts(8, 24, 4, True, judge=True, synthetic=True)
+    assert job_counts(result.stdout + result.stderr) == expected_counts(8, 24, 4, True, judge=True, synthetic=True, foundation=not shipped)
+    everything = snakemake(root, "-n", "--printshellcmds", "--configfile", configfile).stdout
+    trained = [command for command in FOUNDATION_TRAINING if f"recondreamer {command} " in everything]
+    assert trained == ([] if shipped else [c for c in FOUNDATION_TRAINING if c not in ("train-refiner",)])
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", configfile, "--until", "train_baseline").stdout
     synth = [line for line in shell.splitlines() if "recondreamer synth " in line]
     train = [line for line in shell.splitlines() if "recondreamer train-recon " in line]
@@ -219,8 +231,6 @@ def test_restorer_steps_and_crop_reach_every_fine_tuning_alike(tmp_path):
     assert steps == {"sd": "35", "svd": "35", "dd2": "35", "dd2_mask": "35"}
 
 
-FOUNDATION_TRAINING = ("train-autoencoder", "pretrain-world-model", "train-restorer", "train-eval-models")
-
 
 def test_foundation_config_dry_run_builds_every_foundation_model_and_its_gates(tmp_path):
     root = workflow_copy(tmp_path)
@@ -274,9 +284,8 @@ def test_restorer_timestep_power_pixel_loss_weight_ema_decay_and_depth_reach_eve
     assert "timestep_power" not in config["restorer"]
     quick_shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "config/quick.yaml", "--until", "train_restorer").stdout
     assert "train-restorer" in quick_shell and "--timestep-power" not in quick_shell
-    # The default config pins the power its documented tables were made with.
-    default_shell = snakemake(root, "-n", "--printshellcmds", "--until", "train_restorer").stdout
-    assert set(re.findall(r"train-restorer --arch \w+ .*?--timestep-power (\S+)", default_shell)) == {"3"}
+    # The default config trains no restorer: it uses the shipped weight set.
+    assert "train-restorer" not in snakemake(root, "-n", "--printshellcmds").stdout
     config["restorer"]["timestep_power"] = 50
     (root / "power.yaml").write_text(yaml.safe_dump(config))
     shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "power.yaml", "--until", "train_restorer").stdout
