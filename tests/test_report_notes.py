@@ -13,6 +13,7 @@ from recondreamer.report.notes import pdus_reach, run_notes, state_parameters
 def _config(results):
     config = yaml.safe_load(open("config/config.yaml"))
     config["results_dir"] = str(results)
+    config["foundation"] = {"weights": "train"}  # the fixture's model files stand where a DAG trains them
     config.setdefault("methods", {})
     return config
 
@@ -51,6 +52,17 @@ def test_every_stand_in_is_named_with_its_size(run):
     assert "DriveRestorer fine-tuning steps: sd 500, svd 500, dd2 500, dd2_mask 500" in text
     assert "never novel-view truth" in text
     assert notes[1] == notes[2] == notes[4]
+
+
+def test_the_default_config_names_the_shipped_weight_set_and_its_budgets(tmp_path):
+    from recondreamer.foundation.weights import read_manifest, shipped_weights_dir
+
+    config = yaml.safe_load(open("config/config.yaml"))
+    config["results_dir"] = str(tmp_path)
+    text = " ".join(run_notes(config)[1])
+    assert f"trained once on the synthetic corpus, from the weight set {shipped_weights_dir()}" in text
+    steps = read_manifest(shipped_weights_dir())["files"]["restorer_dd2_mask.pt"]["training"]["total_steps"]
+    assert f"dd2_mask {steps}" in text
 
 
 def test_users_own_files_are_named_as_theirs(run, tmp_path):
