@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from recondreamer.cli import main
 from recondreamer.evaluation import inference
@@ -20,6 +22,7 @@ from recondreamer.evaluation.models import (
 from recondreamer.foundation.gates import flicker
 from recondreamer.foundation.weights import (
     MANIFEST,
+    WEIGHT_FILES,
     WeightsError,
     publish_weight_set,
     read_manifest,
@@ -216,16 +219,11 @@ class TestShippedSet:
 
     def test_every_file_verifies_and_loads(self):
         manifest = verify_weight_set(shipped_weights_dir())
-        from recondreamer.foundation.weights import WEIGHT_FILES
-
         assert set(manifest["files"]) == {spec.name for spec in WEIGHT_FILES}
         total = sum(p.stat().st_size for p in shipped_weights_dir().iterdir() if p.is_file())
         assert total <= 64 * 2**20
 
     def test_trained_on_no_evaluation_seed_of_the_default_configs(self):
-        import yaml
-        from pathlib import Path
-
         manifest = read_manifest(shipped_weights_dir())
         first, last = manifest["corpus"]["seeds"]
         seen = set(range(first, last + 1)) | set(manifest["gate_scenes"]["seeds"])
@@ -286,7 +284,6 @@ class TestPackaging:
         import subprocess
         import sys
         import zipfile
-        from pathlib import Path
 
         repo = Path(__file__).resolve().parents[1]
         build = subprocess.run([sys.executable, "-m", "pip", "wheel", str(repo), "--no-deps", "--no-build-isolation", "-q", "-w", str(tmp_path / "wheel")],

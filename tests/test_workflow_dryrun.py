@@ -231,7 +231,6 @@ def test_restorer_steps_and_crop_reach_every_fine_tuning_alike(tmp_path):
     assert steps == {"sd": "35", "svd": "35", "dd2": "35", "dd2_mask": "35"}
 
 
-
 def test_foundation_config_dry_run_builds_every_foundation_model_and_its_gates(tmp_path):
     root = workflow_copy(tmp_path)
     result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "config/foundation.yaml")

@@ -288,7 +288,7 @@ def train_scene(
     )
     if run_dir is not None and Path(run_dir).exists() and not Path(run_dir).is_dir():
         raise OutputPathError(f"{run_dir}: exists and is not a directory; choose another --out directory for the run")
-    fingerprint = scene.fingerprint() if scene_path is not None and hasattr(scene, "fingerprint") else None
+    fingerprint = scene.fingerprint() if scene_path is not None else None
     checkpoint = Path(run_dir) / CHECKPOINT_NAME if run_dir is not None else None
     if resume and checkpoint is not None and checkpoint.exists():
         record = read_record(checkpoint)

@@ -540,7 +540,7 @@ class Scene:
     def fingerprint(self) -> str:
         """sha256 over every file of the scene directory (relative path and bytes): two scenes
         with the same id but other content (another seed, size or frame count, an edit by hand)
-        have different fingerprints. About 20 ms for a compact scene."""
+        have different fingerprints. About 30 ms for a compact scene (15 MB)."""
         digest = hashlib.sha256()
         for file in sorted(p for p in self.path.rglob("*") if p.is_file() and p.name != OUTPUT_MARKER):
             digest.update(file.relative_to(self.path).as_posix().encode() + b"\0")

@@ -56,13 +56,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_synth(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
     from recondreamer.scene import write_scene
     from recondreamer.sources.synthetic import generate_segment
 
-    if args.seed < 0:
-        raise RecondreamerError(f"--seed {args.seed}: must be a non-negative integer")
     check_replaceable(args.out, "scene")  # before minutes of rendering
     overrides = {"width": args.width, "height": args.height, "frames": args.frames}
     if args.no_novel:
