@@ -11,9 +11,11 @@ plain file, an input or a folder holding inputs is refused before anything is wr
 from __future__ import annotations
 
 import contextlib
+import glob
 import json
 import os
 import shutil
+import socket
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -38,12 +40,47 @@ def _default_mode(is_dir: bool) -> int:
     return (0o777 if is_dir else 0o666) & ~_umask()
 
 
+def _temporary_prefix(path: Path) -> str:
+    """Prefix of the temporary siblings this process makes for ``path``: the host and process id
+    in the name let a later writer tell a dead process's leftovers from another writer's work."""
+    return f".{path.name}.{socket.gethostname()}.{os.getpid()}."
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def remove_stale_temporaries(path: Path) -> list[Path]:
+    """Delete the temporary siblings of ``path`` left by killed processes of this host (a kill -9
+    during a write leaves one behind); those of live processes and other hosts are kept.
+    Returns what was deleted."""
+    host = socket.gethostname()
+    removed = []
+    for leftover in path.parent.glob(f"{glob.escape(f'.{path.name}.{host}.')}*.tmp"):
+        pid = leftover.name[len(f".{path.name}.{host}.") :].split(".", 1)[0]
+        if not pid.isdigit() or _process_alive(int(pid)):
+            continue
+        if leftover.is_dir():
+            shutil.rmtree(leftover, ignore_errors=True)
+        else:
+            leftover.unlink(missing_ok=True)
+        removed.append(leftover)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary file path next to ``path``; rename it onto ``path`` if the block succeeds."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    remove_stale_temporaries(path)
+    fd, tmp_name = tempfile.mkstemp(prefix=_temporary_prefix(path), suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     tmp.chmod(_default_mode(is_dir=False))
@@ -105,7 +142,8 @@ def atomic_directory(path: str | os.PathLike, kind: str) -> Iterator[Path]:
     path = Path(path)
     check_replaceable(path, kind)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    remove_stale_temporaries(path)
+    tmp = Path(tempfile.mkdtemp(prefix=_temporary_prefix(path), suffix=".tmp", dir=path.parent))
     tmp.chmod(_default_mode(is_dir=True))
     try:
         yield tmp

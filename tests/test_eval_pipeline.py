@@ -1,6 +1,7 @@
 """Evaluation on a tiny synthetic scene: geometric ground truth, oracle models, the evaluate command, bad inputs."""
 
 import json
+from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from PIL import Image
 from recondreamer.cli import main
 from recondreamer.errors import CheckpointError
 from recondreamer.evaluation import frechet, gates, inference, lanes, nta_iou
-from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
+from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig, config_from_dict
 from recondreamer.evaluation.renders import RenderError, load_render_frames
 from recondreamer.evaluation.training import detector_targets
 from recondreamer.scene.structure import project_boxes_2d
@@ -113,11 +114,12 @@ def test_ntl_iou_of_the_true_lane_mask_is_one_and_drops_for_the_wrong_camera(sce
 # ---------------------------------------------------------------- models, targets, gates
 
 
-def test_detector_targets_decode_back_to_the_boxes():
-    config = DetectorConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16), neck_width=8)
+@pytest.mark.parametrize("upsample", [1, 2])
+def test_detector_targets_decode_back_to_the_boxes(upsample):
+    config = DetectorConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16), neck_width=8, upsample=upsample)
     model = config.build().eval()
     boxes = np.array([[10.0, 12.0, 30.0, 28.0], [50.0, 20.0, 90.0, 50.0]])
-    heat, size, offset, _ = detector_targets([boxes], 16, 24, model.stride)
+    heat, size, offset, _ = detector_targets([boxes], 16 * upsample, 24 * upsample, model.stride)
     logits = torch.logit(heat.clamp(1e-4, 1 - 1e-4))[:, None]
     decoded, scores = model.decode({"heatmap_logits": logits, "log_size": size, "offset": offset}, 0.5)[0]
     order = decoded[:, 0].argsort()
@@ -133,6 +135,14 @@ def test_model_output_shapes():
     assert seg["lane_logits"].shape == (2, 2, 64, 96) and seg["area_logits"].shape == (2, 2, 64, 96)
     fid = FeatureNetConfig(input_width=96, input_height=64).build()
     assert fid(images).shape == (2, 9, 64, 96) and fid.features(images).shape == (2, 48 + 96 + 128)
+
+
+def test_upsampling_detector_has_a_finer_heat_map_and_loads_from_old_configs():
+    images = torch.rand(1, 3, 64, 96) * 255
+    model = DetectorConfig(input_width=96, input_height=64, upsample=2).build()
+    assert model.stride == 2 and model(images)["heatmap_logits"].shape == (1, 1, 32, 48)
+    old = {k: v for k, v in asdict(DetectorConfig(input_width=96, input_height=64)).items() if k != "upsample"}
+    assert config_from_dict("vehicle_detector", old).upsample == 1  # files written before the field existed
 
 
 def test_average_precision_with_ignored_vehicles():

@@ -39,7 +39,7 @@ def test_corpus_split_holds_out_whole_scenes(corpus):
 def test_train_eval_models_command_writes_models_and_gates(corpus, tmp_path):
     out = tmp_path / "models"
     args = ["train-eval-models", "--corpus", str(corpus), "--out", str(out), "--holdout-scenes", "1", "--frame-stride", "6",
-            "--detector-steps", "2", "--lane-steps", "2", "--feature-steps", "2", "--batch-size", "2"]
+            "--detector-steps", "2", "--detector-upsample", "2", "--lane-steps", "2", "--feature-steps", "2", "--batch-size", "2"]
     assert main(args) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert set(metrics["gates"]) == {"vehicle_detector", "lane_segmenter", "fid_features"}
@@ -49,8 +49,10 @@ def test_train_eval_models_command_writes_models_and_gates(corpus, tmp_path):
         loaded = inference.load_model(out / name, kind)
         assert loaded.sha256 == metrics["models"][kind]["sha256"]
         assert (loaded.module.config.input_width, loaded.module.config.input_height) == (96, 64)
+    assert inference.load_model(out / "vehicle_detector.pt", "vehicle_detector").module.config.upsample == 2
     assert not (out / "checkpoints").exists()
-    assert main(["train-eval-models", "--corpus", str(corpus), "--out", str(tmp_path / "x"), "--batch-size", "0"]) == 1
+    for bad in (["--batch-size", "0"], ["--detector-upsample", "0"]):
+        assert main(["train-eval-models", "--corpus", str(corpus), "--out", str(tmp_path / "x"), *bad]) == 1
 
 
 def test_training_resumes_from_its_checkpoint(corpus, tmp_path):

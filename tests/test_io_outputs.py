@@ -5,11 +5,14 @@ place, and a run resumes only on the scene it started on."""
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
+import sys
 
 import pytest
 
 from recondreamer.cli import main
-from recondreamer.io import OUTPUT_MARKER, OutputPathError, atomic_directory, output_kind
+from recondreamer.io import OUTPUT_MARKER, OutputPathError, atomic_directory, atomic_path, output_kind, write_text_atomic
 
 TINY_SCENE = ["--preset", "quick", "--frames", "3", "--width", "64", "--height", "48", "--no-novel"]
 
@@ -56,6 +59,44 @@ class TestAtomicDirectory:
             assert (out / "keep.txt").read_text() == "keep"
         if existing == "file":
             assert out.read_text() == "keep"
+
+
+def _killed_mid_write(target, directory: bool) -> list:
+    """Start a process that writes ``target`` atomically and hangs inside the write, kill -9 it,
+    and return the temporaries it left beside ``target``."""
+    helper = "atomic_directory(target, 'frames')" if directory else "atomic_path(target)"
+    code = (
+        "import sys, time\nfrom pathlib import Path\nfrom recondreamer.io import atomic_directory, atomic_path\n"
+        f"target = Path(sys.argv[1])\nwith {helper} as tmp:\n    print(tmp, flush=True)\n    time.sleep(60)\n"
+    )
+    process = subprocess.Popen([sys.executable, "-c", code, str(target)], stdout=subprocess.PIPE, text=True)
+    process.stdout.readline()  # the write has started
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    return sorted(target.parent.glob(f".{target.name}.*.tmp"))
+
+
+class TestKilledWrites:
+    @pytest.mark.parametrize("directory", [False, True])
+    def test_the_next_write_removes_what_a_killed_writer_left(self, tmp_path, directory):
+        target = tmp_path / ("renders" if directory else "metrics.json")
+        left = _killed_mid_write(target, directory)
+        assert len(left) == 1  # kill -9 gives the writer no chance to clean up
+        if directory:
+            with atomic_directory(target, "frames") as tmp:
+                (tmp / "000.png").write_bytes(b"1")
+        else:
+            write_text_atomic(target, "{}")
+        assert not left[0].exists() and target.exists()
+        assert list(tmp_path.glob(".*.tmp")) == []
+
+    def test_a_live_writers_temporary_is_kept(self, tmp_path):
+        target = tmp_path / "metrics.json"
+        with atomic_path(target) as inflight:
+            inflight.write_text("partial")
+            write_text_atomic(target, "{}")  # a second writer of the same file meanwhile
+            assert inflight.read_text() == "partial"
+        assert target.read_text() == "partial"  # the first writer's rename came last
 
 
 class TestOutPaths:

@@ -23,6 +23,7 @@ def register(subparsers) -> None:
     p.add_argument("--corpus", required=True, type=Path, help="directory of corpus scene directories")
     p.add_argument("--out", required=True, type=Path, help="output directory for the model files and metrics.json")
     p.add_argument("--detector-steps", type=int, default=1500, help="training steps of the vehicle detector (default 1500)")
+    p.add_argument("--detector-upsample", type=int, default=1, help="enlarge frames this many times inside the detector, for the few-pixel vehicles of small frames (default 1)")
     p.add_argument("--lane-steps", type=int, default=2000, help="training steps of the lane segmenter (default 2000)")
     p.add_argument("--feature-steps", type=int, default=200, help="training steps of the FID feature network (default 200)")
     p.add_argument("--batch-size", type=int, default=12, help="frames per training step (default 12)")
@@ -114,7 +115,7 @@ def _train_eval_models(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.evaluation.train_eval_models import EvalModelsConfig, train_eval_models
 
-    for name in ("detector_steps", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes"):
+    for name in ("detector_steps", "detector_upsample", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes"):
         if getattr(args, name) < 1:
             raise RecondreamerError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if any(c < 0 or c % 16 for c in args.crop):
@@ -132,6 +133,7 @@ def _train_eval_models(args: argparse.Namespace) -> int:
         min_lidar_points=args.min_lidar_points,
         crop_width=args.crop[0],
         crop_height=args.crop[1],
+        detector_upsample=args.detector_upsample,
         seed=args.seed,
         force=args.force,
         device=args.device,

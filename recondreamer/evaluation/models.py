@@ -44,15 +44,16 @@ class DetectorConfig:
     widths: tuple[int, int, int, int] = (16, 32, 64, 96)  # channels at strides 2, 4, 8, 16
     neck_width: int = 32
     max_detections: int = 64
+    # Frames are enlarged this many times (bilinear) before the network, so its stride-4 heat map
+    # resolves the few-pixel vehicles of compact frames; boxes stay in input pixels.
+    upsample: int = 1
 
     def build(self) -> VehicleDetector:
         return VehicleDetector(self)
 
 
 class VehicleDetector(nn.Module):
-    """CenterNet-style vehicle detector; outputs at stride 4."""
-
-    stride = 4
+    """CenterNet-style vehicle detector; outputs at stride 4 of the (upsampled) frames."""
 
     def __init__(self, config: DetectorConfig):
         super().__init__()
@@ -76,7 +77,14 @@ class VehicleDetector(nn.Module):
         # Start the heat map at a 1% prior so the focal loss begins small (CenterNet's choice).
         nn.init.constant_(self.heatmap_head.bias, -4.6)
 
+    @property
+    def stride(self) -> float:
+        """Input pixels per heat-map cell."""
+        return 4 / self.config.upsample
+
     def forward(self, images: torch.Tensor) -> dict[str, torch.Tensor]:  # (B,3,H,W) [0,255]
+        if self.config.upsample > 1:
+            images = F.interpolate(images, scale_factor=self.config.upsample, mode="bilinear", align_corners=False)
         x2 = self.stage2(_normalise(images))  # (B,w2,H/2,W/2)
         x4 = self.stage4(x2)  # (B,w4,H/4,W/4)
         x8 = self.stage8(x4)  # (B,w8,H/8,W/8)
@@ -84,7 +92,7 @@ class VehicleDetector(nn.Module):
         p16 = self.lateral16(x16)
         p8 = self.smooth8(self.lateral8(x8) + F.interpolate(p16, size=x8.shape[-2:], mode="nearest"))
         p4 = self.smooth4(self.lateral4(x4) + F.interpolate(p8, size=x4.shape[-2:], mode="nearest"))
-        h = self.head(p4)  # (B,n,H/4,W/4)
+        h = self.head(p4)  # (B,n,H/4,W/4) at the upsampled size
         return {
             "heatmap_logits": self.heatmap_head(h),  # (B,1,H/4,W/4)
             "log_size": self.size_head(h),  # (B,2,H/4,W/4) log of box (width, height) in input pixels

@@ -110,7 +110,7 @@ def make_batch(samples: list[FrameSample], rng: np.random.Generator, degrade: bo
 # ---------------------------------------------------------------------------- losses
 
 
-def detector_targets(boxes_per_image: list[np.ndarray], out_h: int, out_w: int, stride: int):
+def detector_targets(boxes_per_image: list[np.ndarray], out_h: int, out_w: int, stride: float):
     """CenterNet targets: Gaussian heat maps peaking at 1 on the centre cells, sizes and offsets there."""
     batch = len(boxes_per_image)
     heat = np.zeros((batch, out_h, out_w), np.float32)

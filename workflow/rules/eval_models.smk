@@ -14,7 +14,7 @@ rule train_eval_models:
         out=lambda wildcards, output: parent(output.metrics),
         settings=" ".join(
             f"--{key.replace('_', '-')} {config['eval_models'][key]}"
-            for key in ("detector_steps", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes", "seed")
+            for key in ("detector_steps", "detector_upsample", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes", "seed")
         ),
         min_lidar_points=config["evaluation"]["min_lidar_points"],
     threads: config["threads"]["evaluate"]
