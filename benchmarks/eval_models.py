@@ -40,6 +40,7 @@ def main() -> int:
     parser.add_argument("--seed-base", type=int, default=9000, help="first corpus seed (default 9000)")
     parser.add_argument("--holdout-scenes", type=int, default=4, help="held-out scenes for the gates (default 4)")
     parser.add_argument("--detector-steps", type=int, default=None, help="override the default detector training steps")
+    parser.add_argument("--detector-upsample", type=int, default=None, help="override the detector's frame enlargement (default 1)")
     parser.add_argument("--lane-steps", type=int, default=None, help="override the default lane-segmenter training steps")
     parser.add_argument("--feature-steps", type=int, default=None, help="override the default feature-network training steps")
     parser.add_argument("--threads", type=int, default=None, help="torch threads")
@@ -55,7 +56,7 @@ def main() -> int:
     corpus = args.corpus or build_corpus(args.out, args.scenes, args.seed_base)
     began = time.monotonic()
     config = EvalModelsConfig(holdout_scenes=args.holdout_scenes, force=args.force)
-    for name in ("detector_steps", "lane_steps", "feature_steps"):
+    for name in ("detector_steps", "detector_upsample", "lane_steps", "feature_steps"):
         if getattr(args, name) is not None:
             setattr(config, name, getattr(args, name))
     metrics = train_eval_models(corpus, args.out / "models", config)

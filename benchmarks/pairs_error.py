@@ -26,7 +26,7 @@ import argparse
 import numpy as np
 from scipy.ndimage import binary_dilation
 
-from recondreamer.restorer.training import psnr
+from recondreamer.evaluation.image_metrics import psnr
 
 BLOCK = 8
 EDGE_STEP = 0.08

@@ -48,7 +48,8 @@ def main() -> None:
     from recondreamer.restorer.config import RefinerConfig
     from recondreamer.restorer.data import find_pairs_files, load_pairs_file, mapped_pair_arrays, structure_from_uint8
     from recondreamer.restorer.refiner import PixelRefiner, refine_frames
-    from recondreamer.restorer.training import RefinerExample, finish_job, psnr, refiner_loss, run_training_loop
+    from recondreamer.evaluation.image_metrics import psnr
+    from recondreamer.restorer.training import RefinerExample, finish_job, refiner_loss, run_training_loop
 
     torch.set_num_threads(args.threads)
     overrides = {"steps": args.steps, "learning_rate": args.learning_rate}

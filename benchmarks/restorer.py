@@ -78,7 +78,8 @@ def evaluate_restorer(
 
     from recondreamer.restorer.checkpoint import load_checkpoint
     from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.training import psnr, training_totals
+    from recondreamer.evaluation.image_metrics import psnr
+    from recondreamer.restorer.training import training_totals
 
     torch.set_num_threads(threads)
     arch, _, path = item.partition("=")

@@ -35,7 +35,7 @@ from restorer import scored_clips  # noqa: E402  benchmarks/restorer.py
 
 def mean_psnr(clip: np.ndarray, gt: np.ndarray) -> float:  # (T,H,W,3) float or uint8 vs uint8
     """Mean per-frame PSNR of a clip rounded and clipped to uint8 (what a saved frame holds)."""
-    from recondreamer.restorer.training import psnr
+    from recondreamer.evaluation.image_metrics import psnr
 
     frames = np.clip(np.round(clip), 0, 255).astype(np.uint8)
     return float(np.mean([psnr(a, b) for a, b in zip(frames, gt)]))

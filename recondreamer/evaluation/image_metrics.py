@@ -12,9 +12,9 @@ import numpy as np
 SSIM_WINDOW = 11
 
 
-def _to_unit(image: np.ndarray) -> np.ndarray:  # (H,W,3) uint8|float -> float64 [0,1]
+def _to_unit(image: np.ndarray) -> np.ndarray:  # (H,W,3) integer 0-255 | float [0,1] -> float64 [0,1]
     image = np.asarray(image)
-    return image.astype(np.float64) / 255.0 if image.dtype == np.uint8 else image.astype(np.float64)
+    return image.astype(np.float64) / 255.0 if np.issubdtype(image.dtype, np.integer) else image.astype(np.float64)
 
 
 def _check_pair(render: np.ndarray, truth: np.ndarray) -> None:

@@ -57,7 +57,7 @@ def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
     """PSNR of render and restored clip against the truth, gain and flicker, per trajectory."""
     from recondreamer.restorer.checkpoint import load_checkpoint
     from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.training import psnr
+    from recondreamer.evaluation.image_metrics import psnr
 
     restorer = load_restorer(path)
     trained_on = set(load_checkpoint(path, "restorer").get("training_scenes", []))

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError, RecondreamerError
+from recondreamer.evaluation.image_metrics import psnr
 from recondreamer.restorer.autoencoder import Autoencoder, frames_to_tensor
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.restorer.config import (
@@ -210,12 +211,6 @@ def finish_job(out: str | os.PathLike) -> None:
 # ----------------------------------------------------------------------------------------------
 # Autoencoder
 # ----------------------------------------------------------------------------------------------
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR in dB of two uint8 arrays of equal shape."""
-    mse = np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2)
-    return float("inf") if mse == 0 else float(10.0 * np.log10(255.0**2 / mse))
 
 
 def split_heldout(scene_frames: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
