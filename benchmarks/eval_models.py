@@ -56,9 +56,11 @@ def main() -> int:
     corpus = args.corpus or build_corpus(args.out, args.scenes, args.seed_base)
     began = time.monotonic()
     config = EvalModelsConfig(holdout_scenes=args.holdout_scenes, force=args.force)
-    for name in ("detector_steps", "detector_upsample", "lane_steps", "feature_steps"):
+    for name in ("detector_steps", "lane_steps", "feature_steps"):
         if getattr(args, name) is not None:
             setattr(config, name, getattr(args, name))
+    if args.detector_upsample is not None:
+        config.detector.upsample = args.detector_upsample
     metrics = train_eval_models(corpus, args.out / "models", config)
     seconds = time.monotonic() - began
 

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from recondreamer.evaluation.image_metrics import psnr
 from recondreamer.restorer.autoencoder import encode_frames
 from recondreamer.restorer.data import load_pairs_file
 from recondreamer.restorer.inference import _encode_conditions, _sample_clip, clip_noise, load_restorer, residual_decode
-from recondreamer.evaluation.image_metrics import psnr
 
 
 def clip_psnr(frames: np.ndarray, truth: np.ndarray) -> float:

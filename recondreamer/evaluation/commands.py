@@ -113,6 +113,7 @@ def _train_eval_models(args: argparse.Namespace) -> int:
     import torch
 
     from recondreamer.errors import RecondreamerError
+    from recondreamer.evaluation.models import DetectorConfig
     from recondreamer.evaluation.train_eval_models import EvalModelsConfig, train_eval_models
 
     for name in ("detector_steps", "detector_upsample", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes"):
@@ -133,7 +134,7 @@ def _train_eval_models(args: argparse.Namespace) -> int:
         min_lidar_points=args.min_lidar_points,
         crop_width=args.crop[0],
         crop_height=args.crop[1],
-        detector_upsample=args.detector_upsample,
+        detector=DetectorConfig(upsample=args.detector_upsample),
         seed=args.seed,
         force=args.force,
         device=args.device,

@@ -39,7 +39,6 @@ class EvalModelsConfig:
     min_lidar_points: int = DEFAULT_MIN_LIDAR_POINTS
     crop_width: int = 160  # training crops (multiples of 16); 0 trains on full frames
     crop_height: int = 112
-    detector_upsample: int = 1  # DetectorConfig.upsample
     seed: int = 0
     force: bool = False
     device: str = "cpu"
@@ -62,7 +61,6 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
     log.info("corpus: %d training frames from %d scenes, %d held-out frames from %d scenes", len(split.train), len(split.train_scenes), len(split.heldout), len(split.heldout_scenes))
     # The networks run at the corpus size (rounded down to their stride multiples).
     config.detector.input_width, config.detector.input_height = _round_down(split.width, 16), _round_down(split.height, 16)
-    config.detector.upsample = config.detector_upsample
     config.lanes.input_width, config.lanes.input_height = _round_down(split.width, 8), _round_down(split.height, 8)
     config.features.input_width, config.features.input_height = _round_down(split.width, 16), _round_down(split.height, 16)
     provenance = {
