@@ -5,18 +5,21 @@
 #   snakemake --cores 2 --configfile config/foundation.yaml  the foundation weight set (weights/, GATES.md)
 # Every job is one `recondreamer` command; see config/README.md.
 
+import os
+
 from snakemake.utils import min_version, validate
+
+from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, layer, read_yaml_mapping
 
 min_version("9.0")
 
 
-# The default config only when none is given on the command line: a --configfile is a complete
-# config of its own (its segment mapping must not be merged with the default's).
-if not workflow.overwrite_configfiles:
-
-    configfile: "config/config.yaml"
-
-
+# config/config.yaml holds every key; --configfile files (and --config values), which Snakemake
+# has already merged into `config`, set only what differs and are layered over it. Segment lists
+# and local checkpoints replace the default's instead of merging with them (configs.WHOLE_MAPPINGS).
+_layered = layer(read_yaml_mapping(os.path.join(workflow.basedir, DEFAULT_WORKFLOW_CONFIG)), config)
+config.clear()
+config.update(_layered)
 validate(config, "workflow/schemas/config.schema.yaml")
 
 

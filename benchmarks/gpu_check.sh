@@ -242,19 +242,18 @@ EOF
   done
   wait
   grep -h "wrote" "$CAP"/logs/restorer_*.log
-  # The gate's own evaluation (benchmarks/restorer.py: 2 stages per held-out pairs file, PSNR gain and
-  # flicker), with each restorer loaded onto DEVICE.
+  # The gate's own evaluation (as benchmarks/restorer.py's: 2 stages per held-out pairs file, PSNR gain
+  # and flicker of each restorer's default restore), with each restorer loaded onto DEVICE.
   python3 - "$CAP" "$DEVICE" <<'EOF'
 import sys
 from pathlib import Path
-sys.path.insert(0, "benchmarks")
-import restorer as gate  # benchmarks/restorer.py
-import recondreamer.restorer.inference as inference
+import torch
 from recondreamer.restorer.checkpoint import load_checkpoint
+from recondreamer.restorer.inference import load_restorer, restore_clip
+from recondreamer.restorer.scoring import score_clip, scored_clips, summarise
 
 cap, device = Path(sys.argv[1]), sys.argv[2]
-load_on_cpu = inference.load_restorer
-inference.load_restorer = lambda path: load_on_cpu(path, device)
+torch.set_num_threads(1)
 files = sorted((cap / "pairs-heldout").glob("*.npz"))
 print(f"held-out pairs: {', '.join(f.stem for f in files)}")
 print(f"{'model':<11} {'channels':<14} {'params':>8} {'wm steps':>8} {'steps':>6} {'ms/step':>8} {'clips':>5} {'PSNR deg':>8} "
@@ -267,7 +266,9 @@ for model in ("small", "small_long", "wide"):
     payload = load_checkpoint(path, "restorer")
     world = load_checkpoint(cap / "models" / f"wm_{model}.pt", "world_model")
     params = sum(t.numel() for t in payload["state"].values())
-    row = gate.evaluate_restorer(f"dd2_mask={path}", files, [(None, None, None)], 2, 1)[0]
+    restorer = load_restorer(path, device)
+    row = summarise([score_clip(kind, degraded, restore_clip(restorer, degraded, structure), gt)
+                     for kind, degraded, gt, structure in scored_clips(restorer, payload, files, 2)])
     channels = "x".join(map(str, payload["config"]["unet"]["channels"]))
     print(f"{model:<11} {channels:<14} {params / 1e6:>7.2f}M {world['metrics']['steps']:>8} {payload['metrics']['steps']:>6} "
           f"{payload['metrics']['ms_per_step']:>8.0f} {row['clips']:>5} {row['psnr_degraded']:>8.2f} {row['psnr_restored']:>9.2f} "

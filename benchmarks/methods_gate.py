@@ -47,6 +47,7 @@ from pathlib import Path
 
 import yaml
 
+from recondreamer.configs import workflow_config
 from recondreamer.report.layout import (
     Method,
     format_stride,
@@ -75,14 +76,14 @@ class GateRun:
     method: Method
 
 
-def workflow_config(configfile: Path, results_dir: str | None) -> dict:
-    """The config as the Snakefile sees it: the file, validated, with the schema's defaults filled in."""
+def gate_config(root: Path, configfile: Path, results_dir: str | None) -> dict:
+    """The config as the Snakefile sees it: the file layered over the default config, validated."""
     from snakemake.utils import validate
 
-    config = yaml.safe_load(configfile.read_text())
+    config = workflow_config(configfile, root=root)
     if results_dir is not None:
         config["results_dir"] = results_dir
-    validate(config, str(SCHEMA), set_default=True)
+    validate(config, str(SCHEMA))
     return config
 
 
@@ -263,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.restorer_checkpoint is not None and not args.restorer_checkpoint.is_file():
         parser.error(f"--restorer-checkpoint {args.restorer_checkpoint}: file not found")
 
-    args.config = workflow_config(args.directory / args.configfile, args.results_dir)
+    args.config = gate_config(args.directory, args.configfile, args.results_dir)
     results_dir = str(args.directory / args.config["results_dir"])
     known = segment_names(args.config)
     segments = args.segments or known

@@ -39,34 +39,7 @@ import itertools
 import multiprocessing
 import time
 
-import numpy as np
-
-from recondreamer.foundation.gates import flicker
-
-
-def mean(values: list[float]) -> float:
-    return float(np.mean(values)) if values else float("nan")
-
-
-def scored_clips(restorer, payload: dict, pair_files: list, stages_per_run: int, training_scenes: bool = False) -> list[tuple]:
-    """(kind, degraded, gt, structure) of every clip of the pairs files whose scene the restorer was
-    not trained on (with ``training_scenes``: only those it was trained on); ``stages_per_run``
-    training stages per file, spread from earliest to latest (0 = all)."""
-    from recondreamer.restorer.data import load_pairs_file
-
-    trained_on = set(payload.get("training_scenes", []))
-    clips = []
-    for file in pair_files:
-        content = load_pairs_file(file)
-        if (str(content["scene_id"]) in trained_on) != training_scenes:
-            continue
-        kind = "orig" if str(content.get("trajectory", "original")) == "original" else "novel"
-        stages = np.arange(len(content["degraded"]))
-        if stages_per_run:
-            stages = np.unique(np.linspace(0, len(stages) - 1, stages_per_run).round().astype(int))
-        structure = content["structure"] if restorer.unet_config.uses_structure else None
-        clips += [(kind, degraded, content["gt"], structure) for degraded in content["degraded"][stages]]
-    return clips
+from recondreamer.restorer.scoring import score_clip, scored_clips, summarise
 
 
 def evaluate_restorer(
@@ -78,7 +51,6 @@ def evaluate_restorer(
 
     from recondreamer.restorer.checkpoint import load_checkpoint
     from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.evaluation.image_metrics import psnr
     from recondreamer.restorer.training import training_totals
 
     torch.set_num_threads(threads)
@@ -109,10 +81,7 @@ def evaluate_restorer(
             if not records:
                 seconds_per_40 = seconds * 40 / len(degraded)
                 cpu_seconds_per_40 = cpu_seconds * 40 / len(degraded)
-            d = mean([psnr(a, b) for a, b in zip(degraded, gt)])
-            r = mean([psnr(a, b) for a, b in zip(restored, gt)])
-            records.append({"kind": kind, "degraded": d, "restored": r, "flicker_degraded": flicker(degraded, gt), "flicker_restored": flicker(restored, gt)})
-        by_kind = {k: [rec for rec in records if rec["kind"] == k] for k in ("orig", "novel")}
+            records.append(score_clip(kind, degraded, restored, gt))
         rows.append({
             "arch": arch or restorer.arch,
             "space": restorer.diffusion_config.target_space,
@@ -122,14 +91,7 @@ def evaluate_restorer(
             "samples": samples or restorer.restore_config.samples,
             "refine": "on" if refine else ("off" if restorer.refiner is not None else "-"),
             "refiner_minutes": refiner_minutes if restorer.refiner is not None else float("nan"),
-            "clips": len(records),
-            "psnr_degraded": mean([rec["degraded"] for rec in records]),
-            "psnr_restored": mean([rec["restored"] for rec in records]),
-            "gain": mean([rec["restored"] - rec["degraded"] for rec in records]),
-            "gain_orig": mean([rec["restored"] - rec["degraded"] for rec in by_kind["orig"]]),
-            "gain_novel": mean([rec["restored"] - rec["degraded"] for rec in by_kind["novel"]]),
-            "flicker_degraded": mean([rec["flicker_degraded"] for rec in records]),
-            "flicker_restored": mean([rec["flicker_restored"] for rec in records]),
+            **summarise(records),  # clips, PSNR, gain (all / orig / novel), flicker
             "seconds_per_40": seconds_per_40,
             "cpu_seconds_per_40": cpu_seconds_per_40,
             "train_steps": int(train_steps),

@@ -15,17 +15,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from recondreamer.evaluation.image_metrics import psnr
 from recondreamer.restorer.autoencoder import encode_frames
 from recondreamer.restorer.data import load_pairs_file
 from recondreamer.restorer.inference import _encode_conditions, _sample_clip, clip_noise, load_restorer, residual_decode
-
-
-def clip_psnr(frames: np.ndarray, truth: np.ndarray) -> float:
-    return float(np.mean([psnr(a, b) for a, b in zip(frames, truth)]))
+from recondreamer.restorer.scoring import mean_psnr
 
 
 def main() -> None:
@@ -50,8 +45,8 @@ def main() -> None:
     print(f"{args.restorer} on {args.pairs.name} stage {args.stage} ({config.sample_steps} step(s), {config.samples} draws)")
     print(f"latent mean square: degraded-truth {float(((degraded - true_latents) ** 2).mean()):.3f}, "
           f"restored-truth {float(((restored - true_latents) ** 2).mean()):.3f}, restored-degraded {float(((restored - degraded) ** 2).mean()):.3f}")
-    print(f"PSNR: render {clip_psnr(render, truth):.2f} dB, restored {clip_psnr(residual_decode(restorer.autoencoder, render, restored, degraded), truth):.2f} dB, "
-          f"true latents decoded residually {clip_psnr(residual_decode(restorer.autoencoder, render, true_latents, degraded), truth):.2f} dB")
+    print(f"PSNR: render {mean_psnr(render, truth):.2f} dB, restored {mean_psnr(residual_decode(restorer.autoencoder, render, restored, degraded), truth):.2f} dB, "
+          f"true latents decoded residually {mean_psnr(residual_decode(restorer.autoencoder, render, true_latents, degraded), truth):.2f} dB")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,6 @@
 """Evaluation on a tiny synthetic scene: geometric ground truth, oracle models, the evaluate command, bad inputs."""
 
 import json
-from dataclasses import asdict
 
 import numpy as np
 import pytest
@@ -11,7 +10,7 @@ from PIL import Image
 from recondreamer.cli import main
 from recondreamer.errors import CheckpointError
 from recondreamer.evaluation import frechet, gates, inference, lanes, nta_iou
-from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig, config_from_dict
+from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
 from recondreamer.evaluation.renders import RenderError, load_render_frames
 from recondreamer.evaluation.training import detector_targets
 from recondreamer.scene.structure import project_boxes_2d
@@ -137,12 +136,21 @@ def test_model_output_shapes():
     assert fid(images).shape == (2, 9, 64, 96) and fid.features(images).shape == (2, 48 + 96 + 128)
 
 
-def test_upsampling_detector_has_a_finer_heat_map_and_loads_from_old_configs():
+def test_upsampling_detector_has_a_finer_heat_map():
     images = torch.rand(1, 3, 64, 96) * 255
     model = DetectorConfig(input_width=96, input_height=64, upsample=2).build()
     assert model.stride == 2 and model(images)["heatmap_logits"].shape == (1, 1, 32, 48)
-    old = {k: v for k, v in asdict(DetectorConfig(input_width=96, input_height=64)).items() if k != "upsample"}
-    assert config_from_dict("vehicle_detector", old).upsample == 1  # files written before the field existed
+
+
+def test_a_model_file_of_another_code_version_is_refused_naming_the_file(tmp_path):
+    path = tmp_path / "vehicle_detector.pt"
+    inference.save_model(path, "vehicle_detector", DetectorConfig(input_width=96, input_height=64).build(), training={})
+    assert inference.load_model(path, "vehicle_detector").module.config.upsample == 1
+    payload = torch.load(path, weights_only=True)
+    del payload["config"]["upsample"]  # a file written before the field existed
+    torch.save(payload, path)
+    with pytest.raises(CheckpointError, match=r"vehicle_detector.pt: DetectorConfig: missing field\(s\) \['upsample'\]"):
+        inference.load_model(path, "vehicle_detector")
 
 
 def test_average_precision_with_ignored_vehicles():

@@ -13,13 +13,14 @@ import torch
 import yaml
 
 from recondreamer.cli import main
+from recondreamer.configs import to_dict
 from recondreamer.evaluation import inference
 from recondreamer.evaluation.models import (
     DetectorConfig,
     FeatureNetConfig,
     LaneSegmenterConfig,
 )
-from recondreamer.foundation.gates import flicker
+from recondreamer.restorer.scoring import flicker
 from recondreamer.foundation.weights import (
     MANIFEST,
     WEIGHT_FILES,
@@ -43,7 +44,6 @@ from recondreamer.restorer.config import (
     DiffusionConfig,
     TrainConfig,
     UNetConfig,
-    config_to_dict,
 )
 from recondreamer.restorer.diffusion import NoiseSchedule
 from recondreamer.restorer.inference import load_restorer, restore_clip
@@ -97,7 +97,7 @@ def trained_files(tmp_path_factory):
     save_checkpoint(out / "restorer.pt", "restorer", "dd2_mask", model_config_dict(restorer), restorer.unet.state_dict(),
                     autoencoder=autoencoder_payload(restorer.autoencoder), metrics={"steps": 3, "cpu_ms_per_step": 10.0})
     autoencoder = restorer.autoencoder
-    save_checkpoint(out / "autoencoder.pt", "autoencoder", "autoencoder", config_to_dict(autoencoder.config),
+    save_checkpoint(out / "autoencoder.pt", "autoencoder", "autoencoder", to_dict(autoencoder.config),
                     autoencoder.state_dict(), metrics={"heldout_psnr": 12.0})
     configs = {
         "vehicle_detector": DetectorConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16), neck_width=8),

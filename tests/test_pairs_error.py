@@ -1,4 +1,4 @@
-"""benchmarks/pairs_error.py: where a degraded clip's error sits (edges, road lines, coarse scale)."""
+"""experiments/pairs_error.py: where a degraded clip's error sits (edges, road lines, coarse scale)."""
 
 import importlib.util
 from pathlib import Path
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SPEC = importlib.util.spec_from_file_location("pairs_error", REPO / "benchmarks" / "pairs_error.py")
+SPEC = importlib.util.spec_from_file_location("pairs_error", REPO / "experiments" / "pairs_error.py")
 pairs_error = importlib.util.module_from_spec(SPEC)
 SPEC.loader.exec_module(pairs_error)
 

@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from recondreamer.errors import RecondreamerError
-from recondreamer.recon.config import LossConfig, config_from_dict, make_config, to_dict
+from recondreamer.configs import from_dict, to_dict
+from recondreamer.recon.config import LossConfig, ReconConfig, make_config
 from recondreamer.recon.data import TrainingSet, TrainingView, lidar_depth_map
 from recondreamer.recon.density import (
     DensityController,
@@ -53,7 +54,7 @@ def test_slerp_halfway_about_z_axis():
 
 def test_config_round_trip_and_unknown_names():
     config = make_config("s3", "quick", iterations=7)
-    back = config_from_dict(to_dict(config))
+    back = from_dict(ReconConfig, to_dict(config))
     assert to_dict(back) == to_dict(config)
     assert (
         back.iterations == 7
@@ -63,8 +64,8 @@ def test_config_round_trip_and_unknown_names():
         make_config("nerf")
     with pytest.raises(RecondreamerError, match="unknown preset"):
         make_config("street", "huge")
-    with pytest.raises(RecondreamerError, match="unknown ReconConfig field"):
-        config_from_dict({**to_dict(config), "bogus": 1})
+    with pytest.raises(RecondreamerError, match="ReconConfig: unknown field"):
+        from_dict(ReconConfig, {**to_dict(config), "bogus": 1})
 
 
 def test_exponential_lr_endpoints_and_midpoint():

@@ -1,4 +1,4 @@
-"""benchmarks/refiner_bound.py: clipping a refiner's rounded output after the fact is the bounded refiner."""
+"""experiments/refiner_bound.py: clipping a refiner's rounded output after the fact is the bounded refiner."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from test_restorer_refiner import TINY, randomised
 from recondreamer.restorer.refiner import PixelRefiner, refine_frames
 
 REPO = Path(__file__).resolve().parents[1]
-SPEC = importlib.util.spec_from_file_location("refiner_bound", REPO / "benchmarks" / "refiner_bound.py")
+SPEC = importlib.util.spec_from_file_location("refiner_bound", REPO / "experiments" / "refiner_bound.py")
 refiner_bound = importlib.util.module_from_spec(SPEC)
 SPEC.loader.exec_module(refiner_bound)
 

@@ -132,7 +132,7 @@ def test_train_restorer_refuses_a_block_count_below_one(tmp_path, capsys):
     assert code != 0 and "--blocks-per-level must be >= 1" in capsys.readouterr().err
 
 
-def test_a_resume_file_written_before_a_config_field_existed_resumes_when_the_job_uses_its_default(tmp_path, monkeypatch, caplog):
+def test_a_resume_file_resumes_only_the_same_job_configuration(tmp_path, monkeypatch, caplog):
     import recondreamer.restorer.training as training
     from recondreamer.restorer.checkpoint import save_checkpoint
     from recondreamer.restorer.training import resume_path
@@ -150,12 +150,20 @@ def test_a_resume_file_written_before_a_config_field_existed_resumes_when_the_jo
         extra = {key: value for key, value in state.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
         save_checkpoint(state_file, "training_state", state["arch"], {**state["config"], "unet": unet_config}, state["state"], **extra)
 
-    # A resume file written before UNetConfig.blocks_per_level existed.
-    rewrite({key: value for key, value in state["config"]["unet"].items() if key != "blocks_per_level"})
     with caplog.at_level("INFO", logger="recondreamer.restorer.training"):
         _train(world, tmp_path / "r.pt", checkpoint_every=1)
     assert "resuming from" in caplog.text and "at step 1" in caplog.text
     assert not state_file.exists()
+    # A resume file written before UNetConfig.blocks_per_level existed is another job's: never
+    # silently completed with today's default.
+    monkeypatch.setattr(training, "finish_job", lambda out: None)
+    _train(world, tmp_path / "r.pt", checkpoint_every=1)
+    monkeypatch.undo()
+    state = load_checkpoint(state_file, "training_state")
+    rewrite({key: value for key, value in state["config"]["unet"].items() if key != "blocks_per_level"})
+    with pytest.raises(CheckpointError, match="different job configuration"):
+        _train(world, tmp_path / "r.pt", checkpoint_every=1)
+    state_file.unlink()
     # A resume file of another depth is still another job.
     monkeypatch.setattr(training, "finish_job", lambda out: None)
     _train(world, tmp_path / "r.pt", checkpoint_every=1)

@@ -15,7 +15,9 @@ from recondreamer.cli import main
 from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.restorer.autoencoder import frames_to_tensor, tensor_to_frames
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
-from recondreamer.restorer.config import RefinerConfig, RestoreConfig, config_to_dict
+from recondreamer.configs import to_dict
+from recondreamer.errors import RecondreamerError
+from recondreamer.restorer.config import RefinerConfig, RestoreConfig
 from recondreamer.restorer.data import restored_pair_frames, structure_from_uint8
 from recondreamer.restorer.inference import load_restorer, restore_clip
 from recondreamer.restorer.models import autoencoder_payload, model_config_dict, refiner_from_payload
@@ -115,15 +117,16 @@ def test_the_correction_is_clipped_to_max_correction_grey_levels():
     assert torch.equal(bounded_far_away, small(restored, degraded))  # corrections within the bound pass unchanged
 
 
-def test_refiners_written_before_the_output_norm_and_the_bound_load_without_them():
+def test_a_refiner_round_trips_and_one_of_another_code_version_is_refused():
     torch.manual_seed(0)
-    old = randomised(PixelRefiner(dataclasses.replace(TINY, output_norm=False, max_correction=0.0), 0))
-    config = config_to_dict(old.config)
-    del config["output_norm"], config["max_correction"]  # what checkpoints written before these fields existed hold
-    loaded = refiner_from_payload({"config": config, "structure_channels": 0, "state": old.state_dict()})
-    assert not loaded.config.output_norm and loaded.config.max_correction == 0.0
+    refiner = randomised(PixelRefiner(TINY, 0))
+    config = to_dict(refiner.config)
+    loaded = refiner_from_payload({"config": config, "structure_channels": 0, "state": refiner.state_dict()})
     restored, degraded = random_frames(1, 0), random_frames(1, 1)
-    assert torch.equal(loaded(restored, degraded), old(restored, degraded))
+    assert loaded.config == refiner.config and torch.equal(loaded(restored, degraded), refiner(restored, degraded))
+    del config["output_norm"]  # a refiner written before the field existed: never silently given today's default
+    with pytest.raises(RecondreamerError, match=r"missing field\(s\) \['output_norm'\]"):
+        refiner_from_payload({"config": config, "structure_channels": 0, "state": refiner.state_dict()})
 
 
 def test_neighbour_frames_stand_in_with_the_clip_ends():

@@ -69,10 +69,13 @@ def test_suite_config_errors(tmp_path):
         load_suite(_config(tmp_path, {"seg-a": 501}, 3, 500))
     with pytest.raises(RecondreamerError, match="seed must be"):
         load_suite(_config(tmp_path, {"seg-a": "x"}, 1, 500))
-    (tmp_path / "bad.yaml").write_text("synthetic: {preset: quick}\n")
+    (tmp_path / "bad.yaml").write_text("results_dir: [1, 2]\n")  # layered over config/config.yaml: only what it sets
     with pytest.raises(RecondreamerError, match="results_dir"):
         load_suite(tmp_path / "bad.yaml")
-    with pytest.raises(RecondreamerError, match="cannot be read"):
+    (tmp_path / "list.yaml").write_text("- results_dir\n")
+    with pytest.raises(RecondreamerError, match="list.yaml: a config file must hold a mapping of keys, got list"):
+        load_suite(tmp_path / "list.yaml")
+    with pytest.raises(RecondreamerError, match="missing.yaml: not a readable YAML config"):
         load_suite(tmp_path / "missing.yaml")
 
 

@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from recondreamer.configs import workflow_config
+
 REPO = Path(__file__).resolve().parents[1]
 WORKFLOW_FILES = ("Snakefile", "workflow", "config", "profiles")
 
@@ -170,7 +172,7 @@ def test_refiner_steps_add_a_refiner_to_every_trained_restorer_and_the_runs_use_
 
 
 def _bad_config(root: Path, edit) -> str:
-    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config = workflow_config("config/quick.yaml", root=root)
     edit(config)
     (root / "bad.yaml").write_text(yaml.safe_dump(config))
     result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "bad.yaml")

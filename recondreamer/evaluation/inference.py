@@ -19,9 +19,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from recondreamer.errors import CheckpointError
+from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.evaluation.inception import INCEPTION_STATE_DICT_KEY, FIDInceptionV3
-from recondreamer.evaluation.models import MODEL_CONFIGS, config_from_dict, config_to_dict
+from recondreamer.configs import from_dict, to_dict
+from recondreamer.evaluation.models import MODEL_CONFIGS
 from recondreamer.io import atomic_path
 from recondreamer.provenance import command_line
 
@@ -44,7 +45,7 @@ class LoadedModel:
     training: dict  # provenance written at training time (corpus, steps, gates)
 
     def describe(self) -> dict:
-        return {"kind": self.kind, "path": str(self.path), "sha256": self.sha256, "config": config_to_dict(self.module.config)}
+        return {"kind": self.kind, "path": str(self.path), "sha256": self.sha256, "config": to_dict(self.module.config)}
 
 
 def file_sha256(path: str | Path) -> str:
@@ -61,7 +62,7 @@ def save_model(path: str | Path, kind: str, module: torch.nn.Module, training: d
         "format": FORMAT,
         "version": FORMAT_VERSION,
         "kind": kind,
-        "config": config_to_dict(module.config),
+        "config": to_dict(module.config),
         "state_dict": module.state_dict(),
         "training": training,
         "command": command_line(),  # the weight set's manifest names it
@@ -88,7 +89,11 @@ def _model_from_payload(path: Path, payload, kind: str) -> LoadedModel:
         raise CheckpointError(f"{path}: holds a {payload.get('kind')!r} model, expected {kind!r}")
     if kind not in MODEL_CONFIGS:
         raise CheckpointError(f"{path}: unknown model kind {kind!r}")
-    module = config_from_dict(kind, payload["config"]).build()
+    try:
+        config = from_dict(MODEL_CONFIGS[kind], payload["config"])
+    except RecondreamerError as error:
+        raise CheckpointError(f"{path}: {error}; retrain it with this version of the code") from error
+    module = config.build()
     module.load_state_dict(payload["state_dict"])
     module.eval()
     return LoadedModel(kind, module, path, file_sha256(path), payload.get("training", {}))

@@ -16,7 +16,7 @@ Every network takes uint8-range RGB (B,3,H,W) float tensors at its configured in
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -258,12 +258,3 @@ MODEL_CONFIGS = {
     "lane_segmenter": LaneSegmenterConfig,
     "fid_features": FeatureNetConfig,
 }
-
-
-def config_to_dict(config) -> dict:
-    return {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(config).items()}
-
-
-def config_from_dict(kind: str, values: dict):
-    cls = MODEL_CONFIGS[kind]
-    return cls(**{key: tuple(value) if isinstance(value, list) else value for key, value in values.items()})

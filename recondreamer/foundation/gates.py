@@ -29,14 +29,6 @@ GATED_RESTORER = "dd2_mask"  # the paper's DriveRestorer; the other backbones ar
 NOVEL_GATE_TRAJECTORIES = ("shift@3", "shift@6")
 
 
-def flicker(clip: np.ndarray, gt: np.ndarray) -> float:
-    """Temporal-difference error of (T,H,W,3) uint8 clips against their truth, in 0-255 units:
-    change between consecutive frames that the true video does not have (lower is steadier)."""
-    dx = np.diff(clip.astype(np.float32), axis=0)
-    dg = np.diff(gt.astype(np.float32), axis=0)
-    return float(np.mean(np.abs(dx - dg)))
-
-
 def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[tuple]]:
     """Trajectory -> [(scene_id, render (T,H,W,3), truth, structure)]: for novel trajectories the
     render of the final model (the last stage), for the original trajectory every stage."""
@@ -57,7 +49,7 @@ def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
     """PSNR of render and restored clip against the truth, gain and flicker, per trajectory."""
     from recondreamer.restorer.checkpoint import load_checkpoint
     from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.evaluation.image_metrics import psnr
+    from recondreamer.restorer.scoring import pairs_kind, score_clip, summarise
 
     restorer = load_restorer(path)
     trained_on = set(load_checkpoint(path, "restorer").get("training_scenes", []))
@@ -67,21 +59,15 @@ def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
         raise RecondreamerError(f"{path}: the restorer was trained on gate scenes {seen}; gates need scenes no model saw")
     result: dict = {"arch": restorer.arch}
     for trajectory, items in sorted(clips.items()):
-        rows = []
-        for _, render, truth, structure in items:
-            restored = restore_clip(restorer, render, structure)
-            rows.append((
-                np.mean([psnr(a, b) for a, b in zip(render, truth)]),
-                np.mean([psnr(a, b) for a, b in zip(restored, truth)]),
-                flicker(render, truth),
-                flicker(restored, truth),
-            ))
-        render_psnr, restored_psnr, render_flicker, restored_flicker = (float(v) for v in np.mean(rows, axis=0))
+        scores = summarise([score_clip(pairs_kind(trajectory), render, restore_clip(restorer, render, structure), truth)
+                            for _, render, truth, structure in items])
+        render_psnr, restored_psnr = scores["psnr_degraded"], scores["psnr_restored"]
+        render_flicker, restored_flicker = scores["flicker_degraded"], scores["flicker_restored"]
         result[trajectory] = {
-            "clips": len(rows),
+            "clips": scores["clips"],
             "render_psnr": render_psnr,
             "restored_psnr": restored_psnr,
-            "gain_db": restored_psnr - render_psnr,
+            "gain_db": scores["gain"],
             "render_flicker": render_flicker,
             "restored_flicker": restored_flicker,
         }

@@ -18,7 +18,8 @@ import torch
 from recondreamer.errors import CheckpointError
 from recondreamer.io import atomic_path
 from recondreamer.recon.base import GaussianSceneModel
-from recondreamer.recon.config import ReconConfig, config_from_dict, to_dict
+from recondreamer.configs import from_dict, to_dict
+from recondreamer.recon.config import ReconConfig
 from recondreamer.recon.models import MODEL_CLASSES
 
 FORMAT = "recondreamer.recon"
@@ -90,7 +91,7 @@ def read_record(path: str | Path) -> dict:
 
 
 def model_from_record(record: dict) -> GaussianSceneModel:
-    config = config_from_dict(record["config"])
+    config = from_dict(ReconConfig, record["config"])
     model = MODEL_CLASSES[record["model_type"]](record["model_spec"], config.net)
     model.load_state_dict(record["model_state"])
     model.eval()

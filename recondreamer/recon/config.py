@@ -1,6 +1,6 @@
 """Dataclass configs of a reconstruction run and the three presets (quick, default, paper).
 
-A config is plain data: it round-trips through ``to_dict``/``config_from_dict`` so that
+A config is plain data: it round-trips through ``recondreamer.configs`` so that
 checkpoints and ``run.json`` describe themselves. Learning rates of positions are relative to
 the scene extent (metres), as in 3DGS.
 """
@@ -249,38 +249,3 @@ def make_config(model: str, preset: str = "default", **overrides) -> ReconConfig
             raise RecondreamerError(f"unknown config field {key!r}")
         setattr(config, key, value)
     return config
-
-
-def to_dict(config: ReconConfig) -> dict:
-    """JSON-ready nested dict (tuples become lists)."""
-    return dataclasses.asdict(config)
-
-
-def config_from_dict(data: dict) -> ReconConfig:
-    """Inverse of ``to_dict``; unknown keys are an error (a newer or foreign config)."""
-    nested = {
-        "init": InitConfig,
-        "net": ModelConfig,
-        "optim": OptimConfig,
-        "densify": DensifyConfig,
-        "loss": LossConfig,
-    }
-
-    def build(cls, values: dict):
-        names = {f.name: f for f in dataclasses.fields(cls)}
-        unknown = set(values) - set(names)
-        if unknown:
-            raise RecondreamerError(
-                f"unknown {cls.__name__} field(s) in config: {sorted(unknown)}"
-            )
-        kwargs = {}
-        for key, value in values.items():
-            if key in nested and cls is ReconConfig:
-                kwargs[key] = build(nested[key], value)
-            elif isinstance(value, list):
-                kwargs[key] = tuple(value)
-            else:
-                kwargs[key] = value
-        return cls(**kwargs)
-
-    return build(ReconConfig, data)

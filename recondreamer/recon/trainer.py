@@ -34,7 +34,8 @@ from recondreamer.recon.checkpoint import (
     save_record,
     snapshot_path,
 )
-from recondreamer.recon.config import ReconConfig, to_dict
+from recondreamer.configs import to_dict
+from recondreamer.recon.config import ReconConfig
 from recondreamer.recon.data import TargetCache, TrainingSet
 from recondreamer.recon.density import (
     DensityController,

@@ -4,6 +4,7 @@ DriveDreamer4D generator (see ``docs/restorer.md``).
 Modules: ``config`` (dataclass configs), ``autoencoder``, ``unet``, ``diffusion`` (schedule, DDIM),
 ``masks`` (dd2_mask training masks), ``data`` (corpus and pairs as latents), ``pairs``
 (``make-pairs``), ``training``, ``models`` (checkpoints -> models), ``inference``
-(``restore_clip``, ``generate_clip``), ``checkpoint``, ``frames_io``, ``commands`` (CLI).
+(``restore_clip``, ``generate_clip``), ``scoring`` (a restored clip against its truth), ``checkpoint``,
+``frames_io``, ``commands`` (CLI).
 Nothing is imported here, so ``recondreamer --help`` does not load torch.
 """

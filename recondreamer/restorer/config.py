@@ -13,24 +13,6 @@ ARCHS = ("sd", "svd", "dd2", "dd2_mask")
 WORLD_MODEL_ARCHS = ("sd", "svd", "dd2")
 
 
-def config_to_dict(config) -> dict:
-    """A JSON-friendly dict (tuples become lists) for checkpoints and logs."""
-    return dataclasses.asdict(config)
-
-
-def config_from_dict(cls, values: dict):
-    """Rebuild a config dataclass, turning lists back into tuples where the field is a tuple."""
-    kwargs = {}
-    for f in dataclasses.fields(cls):
-        if f.name not in values:
-            continue
-        value = values[f.name]
-        if isinstance(value, list):
-            value = tuple(value)
-        kwargs[f.name] = value
-    return cls(**kwargs)
-
-
 @dataclass(frozen=True)
 class AutoencoderConfig:
     """The latent autoencoder E/D: ``downsample_factor``x smaller latents with ``latent_channels``."""
@@ -161,7 +143,7 @@ class RefinerConfig:
     # surface filling much of a frame, unlike its crops, an unbounded one brightened a truck's side
     # to up to 159 levels from the truth and cost 5 dB. Clipping that refiner's correction at 12 levels
     # scored best of bounds 2-64 and none on 4 scenes neither it nor its restorer trained on
-    # (benchmarks/refiner_bound.py, docs/restorer.md).
+    # (experiments/refiner_bound.py, docs/restorer.md).
     max_correction: float = 12.0
     steps: int = 3000
     batch_size: int = 8  # crops per step

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from dataclasses import dataclass
 
 import torch
 
-from recondreamer.errors import CheckpointError
+from recondreamer.configs import from_dict, to_dict
+from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.restorer.autoencoder import Autoencoder
 from recondreamer.restorer.checkpoint import load_checkpoint
 from recondreamer.restorer.config import (
@@ -19,8 +21,6 @@ from recondreamer.restorer.config import (
     RestoreConfig,
     TrainConfig,
     UNetConfig,
-    config_from_dict,
-    config_to_dict,
 )
 from recondreamer.restorer.device import module_device, use_fast_conv_layout
 from recondreamer.restorer.diffusion import NoiseSchedule
@@ -30,19 +30,31 @@ from recondreamer.restorer.unet import LatentUNet
 
 def autoencoder_from_payload(payload: dict) -> Autoencoder:
     """An autoencoder from a checkpoint dict of kind autoencoder (or the one embedded in a model)."""
-    model = Autoencoder(config_from_dict(AutoencoderConfig, payload["config"]))
+    model = Autoencoder(from_dict(AutoencoderConfig, payload["config"]))
     model.load_state_dict(payload["state"])
     return model.eval().requires_grad_(False)
 
 
 def autoencoder_payload(autoencoder: Autoencoder) -> dict:
     """The autoencoder as embedded in world-model and restorer checkpoints."""
-    return {"config": config_to_dict(autoencoder.config), "state": autoencoder.state_dict()}
+    return {"config": to_dict(autoencoder.config), "state": autoencoder.state_dict()}
+
+
+@contextlib.contextmanager
+def config_errors_name(path: str | os.PathLike):
+    """A stored config that this code cannot rebuild (``configs.from_dict``) becomes a CheckpointError naming the file."""
+    try:
+        yield
+    except CheckpointError:
+        raise
+    except RecondreamerError as error:
+        raise CheckpointError(f"{path}: {error}; retrain it with this version of the code") from error
 
 
 def load_autoencoder(path: str | os.PathLike, device: torch.device | str = "cpu") -> tuple[Autoencoder, dict]:
     payload = load_checkpoint(path, "autoencoder")
-    return use_fast_conv_layout(autoencoder_from_payload(payload).to(device)), payload
+    with config_errors_name(path):
+        return use_fast_conv_layout(autoencoder_from_payload(payload).to(device)), payload
 
 
 @dataclass
@@ -79,39 +91,30 @@ class GenerativeModel:
 
 def model_config_dict(model: GenerativeModel) -> dict:
     return {
-        "unet": config_to_dict(model.unet_config),
-        "diffusion": config_to_dict(model.diffusion_config),
-        "train": config_to_dict(model.train_config),
+        "unet": to_dict(model.unet_config),
+        "diffusion": to_dict(model.diffusion_config),
+        "train": to_dict(model.train_config),
         "structure_channels": list(model.structure_channels),
         "frame_size": list(model.frame_size),
-        "masks": None if model.mask_config is None else config_to_dict(model.mask_config),
-        "restore": config_to_dict(model.restore_config),
+        "masks": None if model.mask_config is None else to_dict(model.mask_config),
+        "restore": to_dict(model.restore_config),
     }
 
 
 def config_sections(config: dict) -> dict:
-    """The config dataclasses of a model config dict (or of a job identity holding one), section by
-    section ("masks" may be None): a field a section lacks, because it was written before the field
-    existed, takes its default, or the value it had before it became configurable."""
+    """The config dataclasses of a model config dict, section by section ("masks" may be None)."""
     return {
-        "unet": config_from_dict(UNetConfig, config["unet"]),
-        # Checkpoints written before the prediction target was configurable were trained on eps.
-        "diffusion": config_from_dict(DiffusionConfig, {"prediction": "epsilon", **config["diffusion"]}),
-        "train": config_from_dict(TrainConfig, config["train"]),
-        "masks": None if config.get("masks") is None else config_from_dict(MaskConfig, config["masks"]),
-        "restore": config_from_dict(RestoreConfig, config.get("restore") or {}),
+        "unet": from_dict(UNetConfig, config["unet"]),
+        "diffusion": from_dict(DiffusionConfig, config["diffusion"]),
+        "train": from_dict(TrainConfig, config["train"]),
+        "masks": None if config["masks"] is None else from_dict(MaskConfig, config["masks"]),
+        "restore": from_dict(RestoreConfig, config["restore"]),
     }
-
-
-def read_model_config(config: dict) -> dict:
-    """``config`` as a checkpoint load reads it: every section rebuilt through ``config_sections``;
-    other entries pass through unchanged."""
-    return {**config, **{name: None if section is None else config_to_dict(section) for name, section in config_sections(config).items()}}
 
 
 def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> GenerativeModel:
     config = payload["config"]
-    sections = config_sections(config)
+    sections = config_sections(config)  # RecondreamerError for a config of another code version
     unet = LatentUNet(sections["unet"])
     unet.load_state_dict(payload["state"])
     return GenerativeModel(
@@ -133,9 +136,7 @@ def model_from_payload(payload: dict, device: torch.device | str = "cpu") -> Gen
 
 def refiner_from_payload(payload: dict) -> PixelRefiner:
     """The pixel refiner stored in a restorer checkpoint's ``refiner`` entry (``training.train_refiner``)."""
-    # Refiners written before ``output_norm`` existed were built without the norm, and those written
-    # before ``max_correction`` without a bound on their correction.
-    config = config_from_dict(RefinerConfig, {"output_norm": False, "max_correction": 0.0, **payload["config"]})
+    config = from_dict(RefinerConfig, payload["config"])
     refiner = PixelRefiner(config, payload["structure_channels"])
     refiner.load_state_dict(payload["state"])
     return refiner.eval()
@@ -143,7 +144,8 @@ def refiner_from_payload(payload: dict) -> PixelRefiner:
 
 def load_generative_model(path: str | os.PathLike, kind: str, device: torch.device | str = "cpu") -> GenerativeModel:
     """Load a ``world_model`` or ``restorer`` checkpoint (CheckpointError on the wrong kind) onto ``device``."""
-    return model_from_payload(load_checkpoint(path, kind), device)
+    with config_errors_name(path):
+        return model_from_payload(load_checkpoint(path, kind), device)
 
 
 def restorer_unet_from_world_model(world: GenerativeModel, arch: str, blocks_per_level: int | None = None) -> LatentUNet:

@@ -2,7 +2,7 @@
 
 The diffusion restorer works on latents four times smaller than the frames, and its output
 reaches pixels through the frozen decoder (with residual decoding, as a decoded change added to
-the render). Most of what a render gets wrong sits on edges (benchmarks/pairs_error.py), i.e.
+the render). Most of what a render gets wrong sits on edges (experiments/pairs_error.py), i.e.
 at the scale the latents blur. The refiner is a small per-frame convolutional network that sees
 the restorer's output, the degraded render and the structure maps at full resolution and
 predicts a correction to the restorer's output; with ``temporal_neighbours`` it also sees the

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError, RecondreamerError
+from recondreamer.configs import from_dict, to_dict
 from recondreamer.evaluation.image_metrics import psnr
 from recondreamer.restorer.autoencoder import Autoencoder, frames_to_tensor
 from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
@@ -33,8 +34,6 @@ from recondreamer.restorer.config import (
     RestoreConfig,
     TrainConfig,
     UNetConfig,
-    config_from_dict,
-    config_to_dict,
 )
 from recondreamer.restorer.data import (
     Sequence,
@@ -55,7 +54,6 @@ from recondreamer.restorer.models import (
     load_grown_state,
     model_config_dict,
     model_from_payload,
-    read_model_config,
     restorer_unet_from_world_model,
 )
 from recondreamer.restorer.refiner import PixelRefiner, neighbour_stack
@@ -122,13 +120,10 @@ def run_training_loop(
     seed: int,
     weight_decay: float = 0.0,
     ema_decay: float = 0.0,
-    read_identity: Callable[[dict], dict] | None = None,
 ) -> dict:
     """Optimise ``module`` with AdamW for ``steps`` steps, resuming from ``OUT.resume.pt``.
 
-    ``job_identity`` (arch and configs) must match the resume file's for it to be used, both
-    read through ``read_identity`` (e.g. ``models.read_model_config``, so a resume file written
-    before a config field existed still matches when the job uses that field's default); the
+    ``job_identity`` (arch and configs) must match the resume file's for it to be used; the
     step count may differ (a job can be extended or cut short on resume: the learning-rate
     schedule then follows the new total). With ``ema_decay`` > 0 an exponential moving average
     of the weights is kept from the first step (torch's ``AveragedModel``) and ``module`` ends
@@ -154,8 +149,7 @@ def run_training_loop(
     state_file = resume_path(out)
     if state_file.exists():
         state = load_checkpoint(state_file, "training_state")
-        read = read_identity or (lambda identity: identity)
-        if _without_steps(read(state["config"])) != _without_steps(read(job_identity)):
+        if _without_steps(state["config"]) != _without_steps(job_identity):
             raise CheckpointError(f"{state_file}: resume file of a different job configuration; delete it to start afresh")
         module.load_state_dict(state["state"])
         optimizer.load_state_dict(state["optimizer"])
@@ -250,7 +244,7 @@ def train_autoencoder(
         ssim = kornia.losses.ssim_loss((recon + 1) / 2, (images + 1) / 2, window_size=7)
         return l1 + config.ssim_weight * ssim
 
-    identity = {"kind": "autoencoder", "config": config_to_dict(config), "seed": seed}
+    identity = {"kind": "autoencoder", "config": to_dict(config), "seed": seed}
     stats = run_training_loop(
         "autoencoder", model, loss_fn, config.steps, config.learning_rate, 50, out, identity,
         checkpoint_every=200, log_every=50, seed=seed,
@@ -260,7 +254,7 @@ def train_autoencoder(
     heldout_psnr = autoencoder_psnr(model, heldout)
     LOG.info("autoencoder: held-out reconstruction PSNR %.2f dB", heldout_psnr)
     metrics = dict(stats, heldout_psnr=heldout_psnr, frame_size=[height, width])
-    save_checkpoint(out, "autoencoder", "autoencoder", config_to_dict(config), model.state_dict(), metrics=metrics)
+    save_checkpoint(out, "autoencoder", "autoencoder", to_dict(config), model.state_dict(), metrics=metrics)
     finish_job(out)
     return metrics
 
@@ -473,7 +467,7 @@ def pretrain_world_model(
     stats = run_training_loop(
         f"pretrain {unet_config.arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
         {"kind": "world_model", "arch": unet_config.arch, **config}, train.checkpoint_every, train.log_every, train.seed, train.weight_decay,
-        train.ema_decay, read_model_config,
+        train.ema_decay,
     )
     save_checkpoint(out, "world_model", unet_config.arch, config, unet.state_dict(), autoencoder=autoencoder_payload(autoencoder), metrics=stats)
     finish_job(out)
@@ -509,7 +503,7 @@ def train_restorer(
     world.to(device)
     initial = None if init_from is None else load_checkpoint(init_from, "restorer")  # the restorer this job starts from
     if blocks_per_level is None and initial is not None:
-        blocks_per_level = config_from_dict(UNetConfig, initial["config"]["unet"]).blocks_per_level
+        blocks_per_level = from_dict(UNetConfig, initial["config"]["unet"]).blocks_per_level
     unet = restorer_unet_from_world_model(world, arch, blocks_per_level)
     if initial is not None:
         check_initial_restorer(init_from, initial, arch, unet.config, world.autoencoder, target_space)
@@ -547,7 +541,7 @@ def train_restorer(
         identity["init_from"] = str(init_from)
     stats = run_training_loop(
         f"restorer {arch}", unet, loss_fn, train.steps, train.learning_rate, train.warmup_steps, out,
-        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay, train.ema_decay, read_model_config,
+        identity, train.checkpoint_every, train.log_every, train.seed, train.weight_decay, train.ema_decay,
     )
     stats["total_steps"], stats["total_cpu_minutes"] = training_totals(stats)
     scenes = {seq.scene_id for seq in sequences}
@@ -574,9 +568,7 @@ def restorer_digest(restorer: GenerativeModel) -> str:
     """A short hash of what a restorer outputs: its UNet weights, autoencoder and restore defaults
     (names the caches of its restored pairs, ``data.restored_pair_frames``)."""
     digest = hashlib.sha1(autoencoder_digest(restorer.autoencoder).encode())
-    restore = config_to_dict(restorer.restore_config)
-    if restore["samples"] == 1:  # as before the field existed, so caches written then stay valid
-        del restore["samples"]
+    restore = to_dict(restorer.restore_config)
     digest.update(json.dumps(restore, sort_keys=True).encode())
     hash_weights(digest, restorer.unet)
     return digest.hexdigest()[:12]
@@ -710,7 +702,7 @@ def train_refiner(
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
         return refiner_loss(refiner, examples, rng, config)
 
-    identity = {"kind": "refiner", "arch": payload["arch"], "restorer": digest, "refiner": config_to_dict(config)}
+    identity = {"kind": "refiner", "arch": payload["arch"], "restorer": digest, "refiner": to_dict(config)}
     stats = run_training_loop(
         "pixel refiner", refiner, loss_fn, config.steps, config.learning_rate, config.warmup_steps, out, identity,
         config.checkpoint_every, config.log_every, config.seed, ema_decay=config.ema_decay,
@@ -728,7 +720,7 @@ def train_refiner(
     scenes = sorted({example.scene_id for example in examples} | set(payload.get("training_scenes", [])))
     extra = {key: value for key, value in payload.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
     extra.update(training_scenes=scenes, refiner={
-        "config": config_to_dict(config), "structure_channels": refiner.structure_channels, "state": refiner.state_dict(),
+        "config": to_dict(config), "structure_channels": refiner.structure_channels, "state": refiner.state_dict(),
         "metrics": stats, "restorer": str(restorer_path),
     })
     save_checkpoint(out, "restorer", payload["arch"], payload["config"], payload["state"], **extra)

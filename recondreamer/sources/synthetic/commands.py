@@ -35,7 +35,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "the segments) to <results_dir>/corpus/<name>/. Scenes already written by this version "
         "from the same seed and preset are kept, so an interrupted run resumes.",
     )
-    suite.add_argument("--config", default="config/config.yaml", help="workflow config file (default: config/config.yaml)")
+    suite.add_argument("--config", default="config/config.yaml", help="workflow config file, layered over config/config.yaml as the workflow layers it (default: config/config.yaml)")
     suite.add_argument("--only", choices=("segments", "corpus"), help="build only the evaluation segments or only the corpus (default: both)")
     suite.add_argument("--jobs", type=int, default=1, help="scenes rendered in parallel processes (default: 1)")
     suite.add_argument("--force", action="store_true", help="rebuild scenes even when they are already current")

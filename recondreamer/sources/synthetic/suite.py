@@ -1,6 +1,7 @@
 """The default synthetic suite: the evaluation segments and the training corpus of a config file.
 
-Names, seeds and presets come from the ``synthetic:`` section of ``config/config.yaml``; scenes
+Names, seeds and presets come from the ``synthetic:`` section of a workflow config (layered over
+``config/config.yaml`` as the Snakefile layers it, ``configs.workflow_config``); scenes
 go to ``<results_dir>/scenes/<name>/`` and ``<results_dir>/corpus/<name>/``. A scene that is
 already on disk, loads, and was made by this generator version from the same seed and settings
 is kept, so an interrupted suite resumes where it stopped (each scene is written atomically).
@@ -15,8 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-import yaml
-
+from recondreamer.configs import workflow_config
 from recondreamer.errors import RecondreamerError
 from recondreamer.sources.synthetic.config import PRESETS, make_config
 
@@ -53,12 +53,7 @@ def _preset(value: object, where: str, file: Path) -> str:
 def load_suite(config_path: str | Path) -> list[SuiteJob]:
     """Every scene of the suite described by the config file, segments first."""
     file = Path(config_path)
-    try:
-        config = yaml.safe_load(file.read_text())
-    except OSError as error:
-        raise RecondreamerError(f"{file}: cannot be read ({error.strerror})") from None
-    except yaml.YAMLError as error:
-        raise RecondreamerError(f"{file}: not valid YAML ({error})") from None
+    config = workflow_config(file)
     results = Path(_require(config, "results_dir", str, "", file))  # relative: to the working directory, as in Snakemake
     synthetic = _require(config, "synthetic", dict, "", file)
     preset = _preset(_require(synthetic, "preset", str, "synthetic.", file), "synthetic.preset", file)
@@ -148,8 +143,7 @@ def write_previews(config_path: str | Path) -> list[Path]:
     """
     from recondreamer.sources.synthetic.preview import contact_sheet
 
-    config = yaml.safe_load(Path(config_path).read_text())
-    preview_dir = Path(config["results_dir"]) / "previews"
+    preview_dir = Path(workflow_config(config_path)["results_dir"]) / "previews"
     sheets = []
     for job in load_suite(config_path):
         if job.group != "segments":

@@ -14,9 +14,10 @@ clip's PSNR against its ground truth and:
   exactly the ground truth's, ``E(gt)``, under residual decoding (``input + D(E(gt)) - D(E(input))``,
   what ``restore_clip`` returns): the ceiling of any latent restorer with that autoencoder.
 
-Example::
+docs/restorer.md cites it for the latent oracle's gain (Design decisions, the autoencoder) and for
+where a render's error sits, the reason for the pixel refiner (Design decisions, Refiner). Example::
 
-    python benchmarks/pairs_error.py --pairs results/restorer-dev/pairs-heldout [--autoencoder results/restorer-dev/ae8_5000.pt]
+    python experiments/pairs_error.py --pairs results/restorer-dev/pairs-heldout [--autoencoder results/restorer-dev/ae8_5000.pt]
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def error_structure(gt: np.ndarray, degraded: np.ndarray, structure: np.ndarray,
     fine = (blocks - blocks.mean((2, 4), keepdims=True)).reshape(t, h, w, c)
     total = squared.sum()
     return {
-        "psnr": -10.0 * np.log10(squared.mean()),
+        "psnr": psnr(degraded, gt),  # over the whole clip
         "edge_pixels": edges.mean(),
         "edge_error": squared[edges].sum() / total,
         "line_pixels": lines.mean(),

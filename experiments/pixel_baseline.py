@@ -5,9 +5,10 @@ if there were no diffusion restorer before it (its "restored" input is the degra
 itself), with ``train-refiner``'s loss, crops and optimiser, then scores it on held-out pairs the
 way ``benchmarks/restorer.py`` scores restorers: mean per-clip PSNR gain over the degraded input
 (split by orig / novel clips), flicker, CPU time. What a DriveRestorer gains beyond this number is
-what its world-model prior and diffusion are worth on these pairs. Example::
+what its world-model prior and diffusion are worth on these pairs; docs/restorer.md cites it for
+that comparison (Design decisions, Refiner). Example::
 
-    python benchmarks/pixel_baseline.py --pairs results/restorer-dev/pairs-train/corpus-00*.npz \\
+    python experiments/pixel_baseline.py --pairs results/restorer-dev/pairs-train/corpus-00*.npz \\
         --heldout results/restorer-dev/pairs-heldout --steps 3000 --out results/restorer-dev/s18/pixel_baseline.pt
 
 ``--out`` is the training job's checkpoint path: a killed run resumes from ``OUT.resume.pt``, and
@@ -18,15 +19,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 import time
-from pathlib import Path
 from types import SimpleNamespace
 
-import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from restorer import flicker, scored_clips  # noqa: E402  benchmarks/restorer.py
+from recondreamer.restorer.scoring import score_clip, scored_clips, summarise
 
 
 def main() -> None:
@@ -48,7 +44,6 @@ def main() -> None:
     from recondreamer.restorer.config import RefinerConfig
     from recondreamer.restorer.data import find_pairs_files, load_pairs_file, mapped_pair_arrays, structure_from_uint8
     from recondreamer.restorer.refiner import PixelRefiner, refine_frames
-    from recondreamer.evaluation.image_metrics import psnr
     from recondreamer.restorer.training import RefinerExample, finish_job, refiner_loss, run_training_loop
 
     torch.set_num_threads(args.threads)
@@ -80,15 +75,8 @@ def main() -> None:
         output = refine_frames(network, degraded, degraded, structure_from_uint8(structure))
         if not records:
             cpu_per_40 = (time.process_time() - start) * 40 / len(degraded)
-        before = np.mean([psnr(a, b) for a, b in zip(degraded, gt)])
-        after = np.mean([psnr(a, b) for a, b in zip(output, gt)])
-        records.append((kind, before, after, flicker(degraded, gt), flicker(output, gt)))
-
-    def mean_gain(kind: str | None) -> float:
-        gains = [after - before for k, before, after, *_ in records if kind in (None, k)]
-        return float(np.mean(gains)) if gains else float("nan")
-
-    columns = np.array([record[1:] for record in records])
+        records.append(score_clip(kind, degraded, output, gt))
+    row = summarise(records)
     print(f"pixel baseline (no world model, no diffusion): {len(examples)} training pairs files of {len(trained_on['training_scenes'])} scenes")
     header = (
         f"{'clips':>5s} {'PSNR deg':>8s} {'PSNR out':>8s} {'gain dB':>7s} {'orig':>6s} {'novel':>6s} {'flick deg':>9s} {'flick out':>9s} "
@@ -97,8 +85,8 @@ def main() -> None:
     print(header)
     print("-" * len(header))
     print(
-        f"{len(records):5d} {columns[:, 0].mean():8.2f} {columns[:, 1].mean():8.2f} {mean_gain(None):7.2f} {mean_gain('orig'):6.2f} "
-        f"{mean_gain('novel'):6.2f} {columns[:, 2].mean():9.2f} {columns[:, 3].mean():9.2f} {cpu_per_40:10.1f} {stats['steps']:11d} "
+        f"{row['clips']:5d} {row['psnr_degraded']:8.2f} {row['psnr_restored']:8.2f} {row['gain']:7.2f} {row['gain_orig']:6.2f} "
+        f"{row['gain_novel']:6.2f} {row['flicker_degraded']:9.2f} {row['flicker_restored']:9.2f} {cpu_per_40:10.1f} {stats['steps']:11d} "
         f"{stats['cpu_ms_per_step']:17.0f} {stats['cpu_ms_per_step'] * stats['steps'] / 60000.0:13.1f}"
     )
 

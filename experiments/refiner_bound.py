@@ -9,10 +9,10 @@ equals running the refiner with that ``max_correction`` (a clamp of the correcti
 rounding to whole levels); the script checks this on the first clip with a bound of 12 and prints
 the largest difference in grey levels.
 
-Example (the run that chose the default bound of 12 grey levels, on 4 scenes neither network trained
-on; docs/restorer.md)::
+docs/restorer.md cites it for the default bound of 12 grey levels (Design decisions, Refiner), measured on 4
+scenes neither network trained on::
 
-    python benchmarks/refiner_bound.py --restorer results/restorer-dev/s23/stage4_ref.pt \\
+    python experiments/refiner_bound.py --restorer results/restorer-dev/s23/stage4_ref.pt \\
         --pairs results/restorer-dev/pairs-train/corpus-09[5-8]__street*.npz --bounds 2 4 8 12 16 24 32 64
 """
 
@@ -21,13 +21,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from restorer import scored_clips  # noqa: E402  benchmarks/restorer.py
-from restorer_variants import mean_psnr, print_gain_table  # noqa: E402  benchmarks/restorer_variants.py
+from recondreamer.restorer.scoring import mean_psnr, print_gain_table, scored_clips
 
 CHECK_BOUND = 12
 

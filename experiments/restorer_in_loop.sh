@@ -3,9 +3,10 @@
 # size of a finished run, without retraining anything else: the baseline runs, scenes and
 # evaluation models of SOURCE are reused, and each ReconDreamer run is trained and evaluated with the
 # commands that config/full.yaml's rules use. Metric files land in the workflow's layout under OUT,
-# so the gate's report reads them:
+# so the gate's report reads them. It measures what a better restorer changes in the methods gate's
+# table; docs/methods.md cites it for that (Results with a better restorer):
 #
-#   benchmarks/restorer_in_loop.sh results/restorer-dev/s8/from9500_whole_px50_900.pt synth-01 synth-02 ...
+#   experiments/restorer_in_loop.sh results/restorer-dev/s8/from9500_whole_px50_900.pt synth-01 synth-02 ...
 #   python benchmarks/methods_gate.py --configfile config/full.yaml --results-dir results/restorer-in-loop \
 #       --backbones street --methods baseline recondreamer --report-only
 #
