@@ -22,7 +22,7 @@ from recondreamer.foundation.weights import (
     shipped_weights_dir,
     verify_weight_set,
 )
-from recondreamer.restorer.data import find_pairs_files
+from recondreamer.generative.data import find_pairs_files
 
 
 def main() -> int:

@@ -4,7 +4,7 @@
 # Stages (the first six by default, in this order; name some to run only those):
 #   env       nvidia-smi, python, torch, gsplat versions
 #   build     gsplat's CUDA extension (compiled by torch on first use; timed)
-#   tests     the splat tests and tests/test_restorer_device.py with the CUDA tests enabled
+#   tests     the splat tests and tests/test_device.py with the CUDA tests enabled
 #   recon     train-recon of a synthetic segment on CUDA with gsplat: the default preset, then
 #             PAPER_ITERATIONS iterations of the paper preset (s/it and the ETA of its 50k)
 #   restorer  the generative stack on CUDA: autoencoder and dd2 world model pretrained on two corpus
@@ -95,7 +95,7 @@ fi
 
 if wants tests; then
   banner "tests with the CUDA ones enabled"
-  python3 -m pytest tests/test_splat_*.py tests/test_restorer_device.py -q -m "cuda or not cuda" -rs -p no:cacheprovider \
+  python3 -m pytest tests/test_splat_*.py tests/test_device.py -q -m "cuda or not cuda" -rs -p no:cacheprovider \
     > "$DEV/logs/tests.log" 2>&1
   echo "pytest exit $? (full log: $DEV/logs/tests.log)"
   grep -m 3 -E 'File ".*/tests/test_' "$DEV/logs/tests.log"  # the test a crash (signal) happened in, if any
@@ -149,8 +149,8 @@ if wants restorer; then
 import json, sys
 from pathlib import Path
 import numpy as np
-from recondreamer.restorer.checkpoint import load_checkpoint
-from recondreamer.restorer.frames_io import read_frames
+from recondreamer.generative.checkpoint import load_checkpoint
+from recondreamer.generative.frames_io import read_frames
 from recondreamer.scene import load_scene
 
 dev, device = Path(sys.argv[1]), sys.argv[2]
@@ -230,8 +230,8 @@ if wants capacity; then
   python3 - "$CAP_AUTOENCODER" "$DEVICE" "$CAP"/pairs-train/*.npz <<'EOF'
 import sys
 from pathlib import Path
-from recondreamer.restorer.data import load_pair_sequences
-from recondreamer.restorer.models import load_autoencoder
+from recondreamer.generative.data import load_pair_sequences
+from recondreamer.generative.models import load_autoencoder
 load_pair_sequences([Path(p) for p in sys.argv[3:]], load_autoencoder(sys.argv[1], sys.argv[2])[0], False, False)
 EOF
   RESTORER_OPTIONS="--target-space residual --timestep-power ${CAP_TIMESTEP_POWER:-3} --residual-decoding on --sample-steps 1 --strength 1.0 --threads 1 --crop ${CAP_CROP:-24 32} --pixel-loss-weight ${CAP_PIXEL_LOSS_WEIGHT:-0}"
@@ -248,9 +248,9 @@ EOF
 import sys
 from pathlib import Path
 import torch
-from recondreamer.restorer.checkpoint import load_checkpoint
-from recondreamer.restorer.inference import load_restorer, restore_clip
-from recondreamer.restorer.scoring import score_clip, scored_clips, summarise
+from recondreamer.generative.checkpoint import load_checkpoint
+from recondreamer.generative.inference import load_restorer, restore_clip
+from recondreamer.generative.scoring import score_clip, scored_clips, summarise
 
 cap, device = Path(sys.argv[1]), sys.argv[2]
 torch.set_num_threads(1)

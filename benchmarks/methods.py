@@ -25,7 +25,7 @@ from recondreamer.methods.dd4d import train_dd4d
 from recondreamer.methods.loop import train_recondreamer
 from recondreamer.methods.pdus import PdusSchedule
 from recondreamer.recon import make_config, render_trajectory, train_scene
-from recondreamer.restorer.inference import load_restorer, load_world_model
+from recondreamer.generative.inference import load_restorer, load_world_model
 from recondreamer.scene import load_scene
 from recondreamer.scene.trajectories import EVAL_TRAJECTORIES, trajectory_cam_to_world
 

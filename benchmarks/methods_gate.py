@@ -54,7 +54,7 @@ from recondreamer.report.layout import (
     metrics_file,
     trajectory_label,
 )
-from recondreamer.report.plan import segment_names
+from recondreamer.experiment_plan import segment_names
 from recondreamer.report.tables import METRICS as TABLE_METRICS
 from recondreamer.report.tables import ReportInputError, read_run_metrics
 

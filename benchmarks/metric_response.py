@@ -137,7 +137,7 @@ def validity_table(results: Path, config_path: Path | None) -> str:
     from recondreamer.evaluation import frechet
     from recondreamer.evaluation.evaluate import read_feature_file
     from recondreamer.report.layout import features_file, metrics_file, trajectory_shift
-    from recondreamer.report.plan import ExperimentPlan
+    from recondreamer.experiment_plan import ExperimentPlan
 
     config = yaml.safe_load((config_path or results / "run_config.yaml").read_text())
     plan = ExperimentPlan.from_config(config)
@@ -183,7 +183,7 @@ def feature_choice_table(results: Path, models_dir: Path, config_path: Path | No
 
     from recondreamer.evaluation import frechet, inference
     from recondreamer.evaluation.renders import load_render_frames
-    from recondreamer.report.plan import ExperimentPlan
+    from recondreamer.experiment_plan import ExperimentPlan
     from recondreamer.scene import load_scene
 
     config = yaml.safe_load((config_path or results / "run_config.yaml").read_text())

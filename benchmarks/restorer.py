@@ -39,7 +39,7 @@ import itertools
 import multiprocessing
 import time
 
-from recondreamer.restorer.scoring import score_clip, scored_clips, summarise
+from recondreamer.generative.scoring import score_clip, scored_clips, summarise
 
 
 def evaluate_restorer(
@@ -49,9 +49,9 @@ def evaluate_restorer(
     clip of its training scenes)."""
     import torch
 
-    from recondreamer.restorer.checkpoint import load_checkpoint
-    from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.training import training_totals
+    from recondreamer.generative.checkpoint import load_checkpoint
+    from recondreamer.generative.inference import load_restorer, restore_clip
+    from recondreamer.generative.training import training_totals
 
     torch.set_num_threads(threads)
     arch, _, path = item.partition("=")
@@ -127,7 +127,7 @@ def main() -> None:
     )
     args = parser.parse_args()
 
-    from recondreamer.restorer.data import find_pairs_files
+    from recondreamer.generative.data import find_pairs_files
 
     files = find_pairs_files(args.pairs)
     residual = [None if value is None else value == "on" for value in args.residual_decoding]

@@ -59,8 +59,8 @@ def error_structure(gt: np.ndarray, degraded: np.ndarray, structure: np.ndarray,
 
 def latent_oracle_db(autoencoder, gt: np.ndarray, degraded: np.ndarray) -> float:
     """Gain (dB) of residual-decoding the ground truth's own latents onto the degraded clip (T,H,W,3) uint8."""
-    from recondreamer.restorer.autoencoder import encode_frames
-    from recondreamer.restorer.inference import residual_decode
+    from recondreamer.generative.autoencoder import encode_frames
+    from recondreamer.generative.inference import residual_decode
 
     oracle = residual_decode(autoencoder, degraded, encode_frames(autoencoder, gt), encode_frames(autoencoder, degraded))
     return psnr(oracle, gt) - psnr(degraded, gt)
@@ -71,11 +71,11 @@ def main() -> None:
     parser.add_argument("--pairs", nargs="+", required=True, help="restoration-pairs directories or .npz files")
     parser.add_argument("--autoencoder", default=None, help="autoencoder checkpoint: adds the latent-oracle column")
     args = parser.parse_args()
-    from recondreamer.restorer.data import find_pairs_files, load_pairs_file
+    from recondreamer.generative.data import find_pairs_files, load_pairs_file
 
     autoencoder = None
     if args.autoencoder:
-        from recondreamer.restorer.models import load_autoencoder
+        from recondreamer.generative.models import load_autoencoder
 
         autoencoder = load_autoencoder(args.autoencoder)[0].eval()
     header = f"{'pairs file':44s} {'stage':>5s} {'PSNR':>6s} {'edge px':>7s} {'edge err':>8s} {'line px':>7s} {'line err':>8s} {'coarse oracle dB':>16s}"

@@ -1,6 +1,6 @@
 """A plain pixel-space CNN restorer, without world model or diffusion: a baseline for DriveRestorer.
 
-Trains the pixel refiner's network (``recondreamer/restorer/refiner.py``) on restoration pairs as
+Trains the pixel refiner's network (``recondreamer/generative/refiner.py``) on restoration pairs as
 if there were no diffusion restorer before it (its "restored" input is the degraded render
 itself), with ``train-refiner``'s loss, crops and optimiser, then scores it on held-out pairs the
 way ``benchmarks/restorer.py`` scores restorers: mean per-clip PSNR gain over the degraded input
@@ -22,7 +22,7 @@ import dataclasses
 import time
 from types import SimpleNamespace
 
-from recondreamer.restorer.scoring import score_clip, scored_clips, summarise
+from recondreamer.generative.scoring import score_clip, scored_clips, summarise
 
 
 def main() -> None:
@@ -33,7 +33,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: RefinerConfig's, as train-refiner)")
     parser.add_argument("--learning-rate", type=float, default=None, help="learning rate (default: RefinerConfig's, as train-refiner)")
     parser.add_argument("--no-output-norm", action="store_true",
-                        help="the network without the channel norm before its last conv (as train-refiner --no-output-norm)")
+                        help="the network without the channel norm before its last conv (as train-refiner --output-norm off)")
     parser.add_argument("--stages-per-run", type=int, default=2, help="held-out stages per pairs file, earliest to latest (0 = all; default 2)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     args = parser.parse_args()
@@ -41,10 +41,10 @@ def main() -> None:
     import torch
 
     from recondreamer.io import atomic_path
-    from recondreamer.restorer.config import RefinerConfig
-    from recondreamer.restorer.data import find_pairs_files, load_pairs_file, mapped_pair_arrays, structure_from_uint8
-    from recondreamer.restorer.refiner import PixelRefiner, refine_frames
-    from recondreamer.restorer.training import RefinerExample, finish_job, refiner_loss, run_training_loop
+    from recondreamer.generative.config import RefinerConfig
+    from recondreamer.generative.data import find_pairs_files, load_pairs_file, mapped_pair_arrays, structure_from_uint8
+    from recondreamer.generative.refiner import PixelRefiner, refine_frames
+    from recondreamer.generative.training import RefinerExample, finish_job, refiner_loss, run_training_loop
 
     torch.set_num_threads(args.threads)
     overrides = {"steps": args.steps, "learning_rate": args.learning_rate}

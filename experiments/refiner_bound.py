@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from recondreamer.restorer.scoring import mean_psnr, print_gain_table, scored_clips
+from recondreamer.generative.scoring import mean_psnr, print_gain_table, scored_clips
 
 CHECK_BOUND = 12
 
@@ -49,10 +49,10 @@ def main() -> None:
 
     import torch
 
-    from recondreamer.restorer.checkpoint import load_checkpoint
-    from recondreamer.restorer.data import find_pairs_files, structure_from_uint8
-    from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.refiner import refine_frames
+    from recondreamer.generative.checkpoint import load_checkpoint
+    from recondreamer.generative.data import find_pairs_files, structure_from_uint8
+    from recondreamer.generative.inference import load_restorer, restore_clip
+    from recondreamer.generative.refiner import refine_frames
 
     torch.set_num_threads(args.threads)
     restorer = load_restorer(args.restorer)

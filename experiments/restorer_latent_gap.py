@@ -17,10 +17,10 @@ from pathlib import Path
 
 import torch
 
-from recondreamer.restorer.autoencoder import encode_frames
-from recondreamer.restorer.data import load_pairs_file
-from recondreamer.restorer.inference import _encode_conditions, _sample_clip, clip_noise, load_restorer, residual_decode
-from recondreamer.restorer.scoring import mean_psnr
+from recondreamer.generative.autoencoder import encode_frames
+from recondreamer.generative.data import load_pairs_file
+from recondreamer.generative.inference import _encode_conditions, _sample_clip, clip_noise, load_restorer, residual_decode
+from recondreamer.generative.scoring import mean_psnr
 
 
 def main() -> None:

@@ -22,7 +22,7 @@ COMMAND_MODULES = (
     "recondreamer.sources.waymo.commands",
     "recondreamer.sources.synthetic.commands",
     "recondreamer.recon.commands",
-    "recondreamer.restorer.commands",
+    "recondreamer.generative.commands",
     "recondreamer.methods.commands",
     "recondreamer.evaluation.commands",
     "recondreamer.foundation.commands",

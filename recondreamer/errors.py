@@ -15,3 +15,13 @@ class ConversionError(RecondreamerError):
 
 class CheckpointError(RecondreamerError):
     """A checkpoint is missing, of the wrong kind or of an unknown format version."""
+
+
+class ConfigValueError(RecondreamerError):
+    """A config field holds a value outside its valid range; ``field`` names it (the command line
+    turns it into its flag, ``cli_options.check_config``)."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field} {message}")
+        self.field = field
+        self.message = message

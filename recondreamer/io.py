@@ -6,11 +6,14 @@ when complete; an existing destination is replaced only after the new one is ful
 only when it is an earlier output of the same kind (each output directory carries a small
 ``.recondreamer-output`` marker naming its kind): an ``--out`` that names an unrelated folder, a
 plain file, an input or a folder holding inputs is refused before anything is written.
+A write that fails because its file system is full raises ``OutputWriteError`` naming the
+output (the previous file or directory is left as it was and the temporary is removed).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import glob
 import json
 import os
@@ -27,6 +30,42 @@ OUTPUT_MARKER = ".recondreamer-output"  # inside every directory atomic_director
 
 class OutputPathError(RecondreamerError):
     """An output path names something that is not an earlier output of the same kind."""
+
+
+class OutputWriteError(RecondreamerError):
+    """An output could not be written because its file system is full; nothing was replaced."""
+
+
+_DISK_FULL_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+# Free bytes under which a failed write is put down to a full file system: writers that do not
+# pass the OS error on (torch.save of a path raises "unexpected pos", numpy's tofile a bare
+# "N requested and M written") leave only the full disk as the evidence.
+_NEARLY_FULL_BYTES = 1 << 20
+
+
+def _free_bytes(directory: Path) -> int | None:
+    try:
+        return shutil.disk_usage(directory).free
+    except OSError:
+        return None
+
+
+def _disk_full_error(path: Path, error: BaseException, replacing: bool) -> OutputWriteError | None:
+    """``OutputWriteError`` naming ``path`` when ``error`` (raised while writing it) comes from
+    a full file system (ENOSPC/EDQUOT anywhere in its chain, or almost no space left); else None.
+    Called before the temporary is removed, while the file system is still as full as it was."""
+    chain, seen = [], set()
+    while error is not None and id(error) not in seen:
+        seen.add(id(error))
+        chain.append(error)
+        error = error.__cause__ or error.__context__
+    free = _free_bytes(path.parent)
+    full = any(isinstance(e, OSError) and e.errno in _DISK_FULL_ERRNOS for e in chain)
+    if not full and not (isinstance(chain[0], (OSError, RuntimeError)) and free is not None and free < _NEARLY_FULL_BYTES):
+        return None
+    kept = "the earlier one is unchanged" if replacing else "nothing was written"
+    space = "" if free is None else f", {free} bytes free"
+    return OutputWriteError(f"{path}: could not be written: no space left on its file system{space} ({kept})")
 
 
 def _umask() -> int:
@@ -87,6 +126,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
+    except (OSError, RuntimeError) as error:
+        failure = _disk_full_error(path, error, path.exists())
+        if failure is None:
+            raise
+        raise failure from error
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -155,6 +199,11 @@ def atomic_directory(path: str | os.PathLike, kind: str) -> Iterator[Path]:
             shutil.rmtree(old)
         else:
             os.replace(tmp, path)
+    except (OSError, RuntimeError) as error:
+        failure = _disk_full_error(path, error, path.exists())
+        if failure is None:
+            raise
+        raise failure from error
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)

@@ -13,7 +13,7 @@ from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, from_dict, layer, read
 from recondreamer.errors import RecondreamerError
 from recondreamer.evaluation.models import MODEL_CONFIGS
 from recondreamer.recon.config import ReconConfig, make_config
-from recondreamer.restorer import config as generative
+from recondreamer.generative import config as generative
 
 
 @dataclasses.dataclass(frozen=True)

@@ -20,7 +20,7 @@ from recondreamer.evaluation.models import (
     FeatureNetConfig,
     LaneSegmenterConfig,
 )
-from recondreamer.restorer.scoring import flicker
+from recondreamer.generative.scoring import flicker
 from recondreamer.foundation.weights import (
     MANIFEST,
     WEIGHT_FILES,
@@ -37,22 +37,22 @@ from recondreamer.report.layout import (
     restorer_checkpoint_path,
     weight_set_dir,
 )
-from recondreamer.restorer.autoencoder import Autoencoder
-from recondreamer.restorer.checkpoint import save_checkpoint
-from recondreamer.restorer.config import (
+from recondreamer.generative.autoencoder import Autoencoder
+from recondreamer.generative.checkpoint import save_checkpoint
+from recondreamer.generative.config import (
     AutoencoderConfig,
     DiffusionConfig,
     TrainConfig,
     UNetConfig,
 )
-from recondreamer.restorer.diffusion import NoiseSchedule
-from recondreamer.restorer.inference import load_restorer, restore_clip
-from recondreamer.restorer.models import (
+from recondreamer.generative.diffusion import NoiseSchedule
+from recondreamer.generative.inference import load_restorer, restore_clip
+from recondreamer.generative.models import (
     GenerativeModel,
     autoencoder_payload,
     model_config_dict,
 )
-from recondreamer.restorer.unet import LatentUNet
+from recondreamer.generative.unet import LatentUNet
 
 H, W = 32, 48
 STRUCTURE = ("boxes", "lanes", "edges")

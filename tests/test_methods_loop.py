@@ -29,22 +29,22 @@ from recondreamer.methods.loop import (
 from recondreamer.methods.pdus import PdusSchedule
 from recondreamer.recon import load_model, make_config
 from recondreamer.recon import trainer as trainer_module
-from recondreamer.restorer.autoencoder import Autoencoder
-from recondreamer.restorer.checkpoint import save_checkpoint
-from recondreamer.restorer.config import (
+from recondreamer.generative.autoencoder import Autoencoder
+from recondreamer.generative.checkpoint import save_checkpoint
+from recondreamer.generative.config import (
     AutoencoderConfig,
     DiffusionConfig,
     RestoreConfig,
     TrainConfig,
     UNetConfig,
 )
-from recondreamer.restorer.diffusion import NoiseSchedule
-from recondreamer.restorer.models import (
+from recondreamer.generative.diffusion import NoiseSchedule
+from recondreamer.generative.models import (
     GenerativeModel,
     autoencoder_payload,
     model_config_dict,
 )
-from recondreamer.restorer.unet import LatentUNet
+from recondreamer.generative.unet import LatentUNet
 from recondreamer.scene import load_scene, write_scene
 from recondreamer.scene.structure import STRUCTURE_CHANNELS
 from recondreamer.sources.synthetic import generate_segment

@@ -47,9 +47,9 @@ def test_coarse_oracle_gain_counts_only_what_8x8_block_means_cannot_fix():
 def test_latent_oracle_is_what_restore_clip_returns_for_a_restorer_that_outputs_the_truth():
     import torch
 
-    from recondreamer.restorer.autoencoder import Autoencoder, decode_latents, encode_frames
-    from recondreamer.restorer.config import AutoencoderConfig
-    from recondreamer.restorer.inference import residual_decode
+    from recondreamer.generative.autoencoder import Autoencoder, decode_latents, encode_frames
+    from recondreamer.generative.config import AutoencoderConfig
+    from recondreamer.generative.inference import residual_decode
 
     torch.manual_seed(0)
     autoencoder = Autoencoder(AutoencoderConfig(hidden_channels=(8, 8, 8))).eval()

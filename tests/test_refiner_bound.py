@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_restorer_models import H, W
-from test_restorer_refiner import TINY, randomised
+from test_generative_models import H, W
+from test_generative_refiner import TINY, randomised
 
-from recondreamer.restorer.refiner import PixelRefiner, refine_frames
+from recondreamer.generative.refiner import PixelRefiner, refine_frames
 
 REPO = Path(__file__).resolve().parents[1]
 SPEC = importlib.util.spec_from_file_location("refiner_bound", REPO / "experiments" / "refiner_bound.py")

@@ -10,7 +10,7 @@ from metric_fixtures import FEATURE_DIM, FRAMES, write_run
 
 from recondreamer.cli import main
 from recondreamer.report.findings import AVERAGE, build_findings
-from recondreamer.report.plan import ExperimentPlan
+from recondreamer.experiment_plan import ExperimentPlan
 
 SEGMENTS = ("seg-a", "seg-b", "seg-c", "seg-d", "seg-e")
 TRAJECTORIES = ("shift@3", "shift@6", "lane_change")

@@ -12,7 +12,7 @@ from metric_fixtures import write_metrics
 from recondreamer.cli import main
 from recondreamer.evaluation import frechet
 from recondreamer.report.layout import Method, format_stride, metrics_file
-from recondreamer.report.plan import ExperimentPlan
+from recondreamer.experiment_plan import ExperimentPlan
 from recondreamer.report.tables import (
     ReportInputError,
     build_tables,

@@ -154,7 +154,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.evaluation.evaluate import evaluate_scene, load_eval_models, write_features
     from recondreamer.io import write_json_atomic
-    from recondreamer.restorer.device import resolve_device
+    from recondreamer.device import resolve_device
 
     if len(args.renders) != len(args.trajectory):
         raise RecondreamerError(f"give one --renders per --trajectory: got {len(args.renders)} --renders and {len(args.trajectory)} --trajectory")

@@ -59,8 +59,8 @@ def run_foundation_gates(args: argparse.Namespace) -> int:
     from recondreamer.foundation import gates as foundation_gates
     from recondreamer.io import write_json_atomic, write_text_atomic
     from recondreamer.report.notes import restorer_recipe
-    from recondreamer.restorer.checkpoint import load_checkpoint
-    from recondreamer.restorer.data import find_pairs_files
+    from recondreamer.generative.checkpoint import load_checkpoint
+    from recondreamer.generative.data import find_pairs_files
 
     if args.threads:
         torch.set_num_threads(args.threads)

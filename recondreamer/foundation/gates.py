@@ -32,7 +32,7 @@ NOVEL_GATE_TRAJECTORIES = ("shift@3", "shift@6")
 def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[tuple]]:
     """Trajectory -> [(scene_id, render (T,H,W,3), truth, structure)]: for novel trajectories the
     render of the final model (the last stage), for the original trajectory every stage."""
-    from recondreamer.restorer.data import load_pairs_file
+    from recondreamer.generative.data import load_pairs_file
 
     clips: dict[str, list[tuple]] = {}
     for path in pair_files:
@@ -47,9 +47,9 @@ def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[t
 
 def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
     """PSNR of render and restored clip against the truth, gain and flicker, per trajectory."""
-    from recondreamer.restorer.checkpoint import load_checkpoint
-    from recondreamer.restorer.inference import load_restorer, restore_clip
-    from recondreamer.restorer.scoring import pairs_kind, score_clip, summarise
+    from recondreamer.generative.checkpoint import load_checkpoint
+    from recondreamer.generative.inference import load_restorer, restore_clip
+    from recondreamer.generative.scoring import pairs_kind, score_clip, summarise
 
     restorer = load_restorer(path)
     trained_on = set(load_checkpoint(path, "restorer").get("training_scenes", []))
@@ -83,9 +83,9 @@ def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
 
 
 def autoencoder_gate(path: str | Path, scene_dirs: list[Path]) -> dict:
-    from recondreamer.restorer.data import load_corpus_frames
-    from recondreamer.restorer.models import load_autoencoder
-    from recondreamer.restorer.training import autoencoder_psnr
+    from recondreamer.generative.data import load_corpus_frames
+    from recondreamer.generative.models import load_autoencoder
+    from recondreamer.generative.training import autoencoder_psnr
 
     autoencoder = load_autoencoder(path)[0]
     values = []

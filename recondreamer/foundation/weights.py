@@ -104,11 +104,11 @@ def load_weight(path: Path, spec: WeightFile):
     """Load one file as its kind (and arch) with this code's architectures; WeightsError otherwise."""
     try:
         if spec.kind == "autoencoder":
-            from recondreamer.restorer.models import load_autoencoder
+            from recondreamer.generative.models import load_autoencoder
 
             return load_autoencoder(path)[0]
         if spec.kind in ("world_model", "restorer"):
-            from recondreamer.restorer.models import load_generative_model
+            from recondreamer.generative.models import load_generative_model
 
             model = load_generative_model(path, spec.kind)
             if model.arch != spec.arch:

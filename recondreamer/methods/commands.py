@@ -78,7 +78,7 @@ def _config(args: argparse.Namespace):
 
     from recondreamer.errors import RecondreamerError
     from recondreamer.recon.config import make_config
-    from recondreamer.restorer.device import resolve_device
+    from recondreamer.device import resolve_device
 
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -95,8 +95,8 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.methods.loop import train_recondreamer
     from recondreamer.methods.pdus import PdusSchedule
-    from recondreamer.restorer.device import resolve_device
-    from recondreamer.restorer.inference import load_restorer
+    from recondreamer.device import resolve_device
+    from recondreamer.generative.inference import load_restorer
     from recondreamer.scene import load_scene
     from recondreamer.sources.synthetic.truth import TrueViewRenderer
 
@@ -120,8 +120,8 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
 def run_train_dd4d(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.methods.dd4d import train_dd4d
-    from recondreamer.restorer.device import resolve_device
-    from recondreamer.restorer.inference import load_world_model
+    from recondreamer.device import resolve_device
+    from recondreamer.generative.inference import load_world_model
     from recondreamer.scene import load_scene
 
     config = _config(args)

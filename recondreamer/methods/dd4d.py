@@ -37,8 +37,8 @@ def generate_videos(scene, world_model, run_dir: str | Path | None,
                     trajectories: tuple[str, ...] = DD4D_TRAJECTORIES, num_steps: int | None = None,
                     seed: int = 0) -> list[NovelVideo]:
     """One generated video per trajectory (reused from ``RUN/generated/`` when already there)."""
-    from recondreamer.restorer.data import scene_structure
-    from recondreamer.restorer.inference import generate_clip
+    from recondreamer.generative.data import scene_structure
+    from recondreamer.generative.inference import generate_clip
 
     reference = np.stack([np.asarray(scene.image(t)) for t in range(scene.num_frames)])  # (T,H,W,3)
     videos = []
@@ -75,7 +75,7 @@ def load_generated_videos(scene, generated_dir: str | Path, trajectories: tuple[
     Poses follow from the trajectory name, as in ``generate_videos``; the folder's ``info.json``
     must name this scene, so that a video of another segment is refused rather than trained on.
     """
-    from recondreamer.restorer.frames_io import read_frames
+    from recondreamer.generative.frames_io import read_frames
 
     videos = []
     for name in trajectories:

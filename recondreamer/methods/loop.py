@@ -102,8 +102,8 @@ class ProgressiveDataUpdate:
             self._write_state(trainer.step)
 
     def _make_update(self, trainer, k: int) -> NovelVideo:
-        from recondreamer.restorer.data import scene_structure
-        from recondreamer.restorer.inference import restore_clip
+        from recondreamer.generative.data import scene_structure
+        from recondreamer.generative.inference import restore_clip
 
         scene, offset = self.scene, self.schedule.offset(k)
         started = time.monotonic()

@@ -117,7 +117,7 @@ def run_train(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.recon.config import make_config
     from recondreamer.recon.trainer import train_scene
-    from recondreamer.restorer.device import resolve_device
+    from recondreamer.device import resolve_device
     from recondreamer.scene import load_scene
 
     if args.threads:
@@ -149,7 +149,7 @@ def run_render(args: argparse.Namespace) -> int:
     from recondreamer.io import check_replaceable
     from recondreamer.recon.checkpoint import RUN_JSON, load_model
     from recondreamer.recon.render import render_to_directories
-    from recondreamer.restorer.device import resolve_device
+    from recondreamer.device import resolve_device
     from recondreamer.scene import load_scene
 
     check_replaceable(args.out, "renders")

@@ -10,7 +10,7 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from recondreamer.report.plan import add_plan_arguments
+    from recondreamer.experiment_plan import add_plan_arguments
 
     p = subparsers.add_parser(
         "make-tables",
@@ -76,7 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _plan(args: argparse.Namespace):
     from recondreamer.errors import RecondreamerError
-    from recondreamer.report.plan import plan_from_arguments
+    from recondreamer.experiment_plan import plan_from_arguments
 
     try:
         return plan_from_arguments(args)

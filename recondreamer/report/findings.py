@@ -30,7 +30,7 @@ import pandas as pd
 
 from recondreamer.report import paper_values
 from recondreamer.report.layout import RESTORER_LABELS, UPPER_BOUND_LABEL, Method, features_file, format_stride, trajectory_label
-from recondreamer.report.plan import ExperimentPlan
+from recondreamer.experiment_plan import ExperimentPlan
 from recondreamer.report.tables import METRIC_BY_KEY, METRICS, ReportInputError, format_value, read_metrics, read_win_rates
 
 AVERAGE = paper_values.AVERAGE

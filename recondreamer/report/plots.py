@@ -24,7 +24,7 @@ from recondreamer.report.layout import (
     render_dir,
     trajectory_shift,
 )
-from recondreamer.report.plan import ExperimentPlan
+from recondreamer.experiment_plan import ExperimentPlan
 from recondreamer.report.tables import ReportInputError, available_metrics, read_metrics
 
 

@@ -27,7 +27,7 @@ from recondreamer.errors import RecondreamerError
 from recondreamer.report.layout import Method, features_file, metrics_file, trajectory_label
 from recondreamer.evaluation.frechet import MIN_SAMPLES_PER_DIMENSION
 from recondreamer.report.layout import UPPER_BOUND_LABEL
-from recondreamer.report.plan import ExperimentPlan
+from recondreamer.experiment_plan import ExperimentPlan
 
 AVERAGE = "Average"
 

@@ -8,7 +8,7 @@ from snakemake.exceptions import WorkflowError
 
 from recondreamer.foundation.weights import WeightsError, verify_weight_set, weight_file
 from recondreamer.report.layout import features_file, metrics_file, model_path, render_dir, restorer_checkpoint_path, run_dir, weight_set_dir
-from recondreamer.report.plan import ExperimentPlan
+from recondreamer.experiment_plan import ExperimentPlan
 
 RESULTS = config["results_dir"]
 EXPERIMENT = config["experiment"]

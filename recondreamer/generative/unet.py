@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from recondreamer.restorer.config import UNetConfig
+from recondreamer.generative.config import UNetConfig
 
 
 def timestep_embedding(timesteps: torch.Tensor, dim: int) -> torch.Tensor:  # (N,) -> (N, dim)

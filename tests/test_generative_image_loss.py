@@ -7,16 +7,16 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from test_restorer_models import H, W, tiny_model
+from test_generative_models import H, W, tiny_model
 
 from recondreamer.cli import main
 from recondreamer.errors import RecondreamerError
-from recondreamer.restorer.autoencoder import Autoencoder, encode_frames, frames_to_tensor
-from recondreamer.restorer.config import AutoencoderConfig, DiffusionConfig, MaskConfig, TrainConfig
-from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
-from recondreamer.restorer.masks import sample_clip_masks
-from recondreamer.restorer.training import image_space_loss, sample_batch, unet_loss_and_estimate
+from recondreamer.generative.autoencoder import Autoencoder, encode_frames, frames_to_tensor
+from recondreamer.generative.config import AutoencoderConfig, DiffusionConfig, MaskConfig, TrainConfig
+from recondreamer.generative.data import Sequence
+from recondreamer.generative.diffusion import NoiseSchedule, diffusion_loss_and_estimate
+from recondreamer.generative.masks import sample_clip_masks
+from recondreamer.generative.training import image_space_loss, sample_batch, unet_loss_and_estimate
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

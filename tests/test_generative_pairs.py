@@ -9,8 +9,8 @@ from recondreamer.errors import RecondreamerError
 from recondreamer.recon import load_model, render_trajectory
 from recondreamer.recon.config import make_config
 from recondreamer.recon.trainer import train_scene
-from recondreamer.restorer.data import load_pairs_file, scene_structure
-from recondreamer.restorer.pairs import make_pairs_for_run
+from recondreamer.generative.data import load_pairs_file, scene_structure
+from recondreamer.generative.pairs import make_pairs_for_run
 from recondreamer.scene import load_scene, write_scene
 from recondreamer.scene.trajectories import trajectory_cam_to_world
 from recondreamer.sources.synthetic import generate_segment

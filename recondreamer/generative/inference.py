@@ -23,11 +23,11 @@ import numpy as np
 import torch
 
 from recondreamer.errors import RecondreamerError
-from recondreamer.restorer.autoencoder import Autoencoder, decode_latents, encode_frames
-from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
-from recondreamer.restorer.diffusion import ddim_sample
-from recondreamer.restorer.models import GenerativeModel, load_generative_model
-from recondreamer.restorer.refiner import refine_frames
+from recondreamer.generative.autoencoder import Autoencoder, decode_latents, encode_frames
+from recondreamer.generative.data import structure_from_uint8, structure_to_uint8
+from recondreamer.generative.diffusion import ddim_sample
+from recondreamer.generative.models import GenerativeModel, load_generative_model
+from recondreamer.generative.refiner import refine_frames
 
 
 def load_restorer(path: str | os.PathLike, device: torch.device | str = "cpu") -> GenerativeModel:

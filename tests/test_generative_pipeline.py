@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from recondreamer.cli import main
-from recondreamer.restorer.checkpoint import load_checkpoint
-from recondreamer.restorer.training import resume_path, run_training_loop
+from recondreamer.generative.checkpoint import load_checkpoint
+from recondreamer.generative.training import resume_path, run_training_loop
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -22,7 +22,7 @@ def _blur(frames: np.ndarray) -> np.ndarray:  # (T,H,W,3) uint8 -> box-blurred c
 
 @pytest.mark.slow
 def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
-    from recondreamer.restorer.data import scene_sky_masks, scene_structure, scene_vanishing_points, structure_channel_names
+    from recondreamer.generative.data import scene_sky_masks, scene_structure, scene_vanishing_points, structure_channel_names
     from recondreamer.scene import load_scene, write_scene
     from recondreamer.sources.synthetic import generate_segment
 

@@ -40,7 +40,7 @@ from collections.abc import Callable
 
 import torch
 
-from recondreamer.restorer.config import DiffusionConfig
+from recondreamer.generative.config import DiffusionConfig
 
 PREDICTIONS = ("epsilon", "v", "x0")
 TARGET_SPACES = ("clean", "residual")

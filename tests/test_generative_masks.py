@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from recondreamer.restorer.config import MaskConfig
-from recondreamer.restorer.masks import mask_regions, sample_clip_masks, sample_keep_mask, vanishing_point
+from recondreamer.generative.config import MaskConfig
+from recondreamer.generative.masks import mask_regions, sample_clip_masks, sample_keep_mask, vanishing_point
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

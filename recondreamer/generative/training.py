@@ -24,9 +24,9 @@ import torch
 from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.configs import from_dict, to_dict
 from recondreamer.evaluation.image_metrics import psnr
-from recondreamer.restorer.autoencoder import Autoencoder, frames_to_tensor
-from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
-from recondreamer.restorer.config import (
+from recondreamer.generative.autoencoder import Autoencoder, frames_to_tensor
+from recondreamer.generative.checkpoint import load_checkpoint, save_checkpoint
+from recondreamer.generative.config import (
     AutoencoderConfig,
     DiffusionConfig,
     MaskConfig,
@@ -35,7 +35,7 @@ from recondreamer.restorer.config import (
     TrainConfig,
     UNetConfig,
 )
-from recondreamer.restorer.data import (
+from recondreamer.generative.data import (
     Sequence,
     autoencoder_digest,
     hash_weights,
@@ -44,10 +44,10 @@ from recondreamer.restorer.data import (
     restored_pair_frames,
     structure_from_uint8,
 )
-from recondreamer.restorer.device import module_device, use_fast_conv_layout
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
-from recondreamer.restorer.masks import sample_clip_masks
-from recondreamer.restorer.models import (
+from recondreamer.device import module_device, use_fast_conv_layout
+from recondreamer.generative.diffusion import NoiseSchedule, diffusion_loss_and_estimate
+from recondreamer.generative.masks import sample_clip_masks
+from recondreamer.generative.models import (
     GenerativeModel,
     autoencoder_payload,
     count_parameters,
@@ -56,8 +56,8 @@ from recondreamer.restorer.models import (
     model_from_payload,
     restorer_unet_from_world_model,
 )
-from recondreamer.restorer.refiner import PixelRefiner, neighbour_stack
-from recondreamer.restorer.unet import LatentUNet
+from recondreamer.generative.refiner import PixelRefiner, neighbour_stack
+from recondreamer.generative.unet import LatentUNet
 
 LOG = logging.getLogger(__name__)
 
@@ -262,7 +262,7 @@ def train_autoencoder(
 @torch.no_grad()
 def autoencoder_psnr(model: Autoencoder, frames: np.ndarray) -> float:
     """Mean per-frame PSNR of decode(encode(frames)) against frames (N,H,W,3) uint8."""
-    from recondreamer.restorer.autoencoder import decode_latents, encode_frames
+    from recondreamer.generative.autoencoder import decode_latents, encode_frames
 
     recon = decode_latents(model, encode_frames(model, frames))
     return float(np.mean([psnr(a, b) for a, b in zip(recon, frames)]))
@@ -411,8 +411,8 @@ def check_initial_restorer(
     """A restorer checkpoint a fine-tuning starts from must fit the job: same arch and UNet shape
     (or the same with more residual blocks per level), built on the same autoencoder (its latents
     are the job's) and the same target space; else a CheckpointError naming ``path``."""
-    from recondreamer.restorer.data import autoencoder_digest
-    from recondreamer.restorer.models import model_from_payload
+    from recondreamer.generative.data import autoencoder_digest
+    from recondreamer.generative.models import model_from_payload
 
     initial = model_from_payload(payload)
     # A job may grow the UNet by residual blocks (they start as the identity), nothing else.
@@ -588,7 +588,7 @@ class RefinerExample:
 def load_refiner_examples(files: list[Path], restorer: GenerativeModel, digest: str, with_structure: bool) -> list[RefinerExample]:
     """Every pairs file with the restorer's output for each of its stages (restored once, then cached
     under the restorer's ``digest``, ``restorer_digest``)."""
-    from recondreamer.restorer.inference import restore_clip
+    from recondreamer.generative.inference import restore_clip
 
     def restore(frames: np.ndarray, structure: np.ndarray) -> np.ndarray:
         return restore_clip(restorer, frames, structure if restorer.unet_config.uses_structure else None, refine=False)

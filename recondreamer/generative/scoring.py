@@ -91,7 +91,7 @@ def scored_clips(restorer, payload: dict, pair_files: list, stages_per_run: int,
     not trained on (with ``training_scenes``: only those it was trained on); ``stages_per_run``
     training stages per file, spread from earliest to latest (0 = all). ``payload`` is the
     restorer's checkpoint (its ``training_scenes``)."""
-    from recondreamer.restorer.data import load_pairs_file
+    from recondreamer.generative.data import load_pairs_file
 
     trained_on = set(payload.get("training_scenes", []))
     clips = []

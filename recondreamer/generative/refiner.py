@@ -23,9 +23,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from recondreamer.restorer.autoencoder import PlainResBlock, frames_to_tensor, tensor_to_frames
-from recondreamer.restorer.config import RefinerConfig
-from recondreamer.restorer.device import module_device
+from recondreamer.generative.autoencoder import PlainResBlock, frames_to_tensor, tensor_to_frames
+from recondreamer.generative.config import RefinerConfig
+from recondreamer.device import module_device
 
 
 class PixelChannelNorm(nn.Module):

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from recondreamer.restorer.autoencoder import Autoencoder
-from recondreamer.restorer.config import AutoencoderConfig
-from recondreamer.restorer.device import use_fast_conv_layout
-from recondreamer.restorer.training import run_training_loop
-from recondreamer.restorer.unet import LatentUNet
-from test_restorer_models import H, W, random_inputs, tiny_model, tiny_unet_config
+from recondreamer.generative.autoencoder import Autoencoder
+from recondreamer.generative.config import AutoencoderConfig
+from recondreamer.device import use_fast_conv_layout
+from recondreamer.generative.training import run_training_loop
+from recondreamer.generative.unet import LatentUNet
+from test_generative_models import H, W, random_inputs, tiny_model, tiny_unet_config
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from recondreamer.cli import main
-from recondreamer.restorer.checkpoint import load_checkpoint
-from recondreamer.restorer.training import resume_path, run_training_loop
+from recondreamer.generative.checkpoint import load_checkpoint
+from recondreamer.generative.training import resume_path, run_training_loop
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 

@@ -6,14 +6,14 @@ import dataclasses
 
 import pytest
 import torch
-from test_restorer_models import tiny_model
+from test_generative_models import tiny_model
 
 from recondreamer.errors import CheckpointError
-from recondreamer.restorer.autoencoder import Autoencoder
-from recondreamer.restorer.checkpoint import load_checkpoint
-from recondreamer.restorer.config import AutoencoderConfig, RestoreConfig, TrainConfig
-from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.training import train_restorer
+from recondreamer.generative.autoencoder import Autoencoder
+from recondreamer.generative.checkpoint import load_checkpoint
+from recondreamer.generative.config import AutoencoderConfig, RestoreConfig, TrainConfig
+from recondreamer.generative.data import Sequence
+from recondreamer.generative.training import train_restorer
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -69,9 +69,9 @@ def test_a_start_that_does_not_fit_the_job_is_refused(tmp_path):
 
 def _outputs(payload: dict) -> torch.Tensor:
     """The UNet output of a restorer checkpoint on fixed random inputs."""
-    from test_restorer_models import random_inputs
+    from test_generative_models import random_inputs
 
-    from recondreamer.restorer.models import model_from_payload
+    from recondreamer.generative.models import model_from_payload
 
     unet = model_from_payload(payload).unet
     inputs = random_inputs("sd")
@@ -105,12 +105,12 @@ def test_a_deeper_restorer_grown_from_another_starts_with_its_output_and_keeps_g
 
 
 def test_a_world_model_grows_into_a_deeper_restorer_that_starts_as_the_world_model(tmp_path):
-    from recondreamer.restorer.models import restorer_unet_from_world_model
+    from recondreamer.generative.models import restorer_unet_from_world_model
 
     world = tiny_model("sd")
     shallow, deep = restorer_unet_from_world_model(world, "sd"), restorer_unet_from_world_model(world, "sd", blocks_per_level=2)
     assert deep.config.blocks_per_level == 2 and len(deep.down_extra[0]) == 1 and len(shallow.down_extra[0]) == 0
-    from test_restorer_models import random_inputs
+    from test_generative_models import random_inputs
 
     inputs = random_inputs("sd")
     degraded = torch.randn_like(inputs["noisy"])
@@ -133,9 +133,9 @@ def test_train_restorer_refuses_a_block_count_below_one(tmp_path, capsys):
 
 
 def test_a_resume_file_resumes_only_the_same_job_configuration(tmp_path, monkeypatch, caplog):
-    import recondreamer.restorer.training as training
-    from recondreamer.restorer.checkpoint import save_checkpoint
-    from recondreamer.restorer.training import resume_path
+    import recondreamer.generative.training as training
+    from recondreamer.generative.checkpoint import save_checkpoint
+    from recondreamer.generative.training import resume_path
 
     world = tiny_model("sd")
     # A job stopped after its first checkpoint (step 1): its resume file stays behind.
@@ -150,7 +150,7 @@ def test_a_resume_file_resumes_only_the_same_job_configuration(tmp_path, monkeyp
         extra = {key: value for key, value in state.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
         save_checkpoint(state_file, "training_state", state["arch"], {**state["config"], "unet": unet_config}, state["state"], **extra)
 
-    with caplog.at_level("INFO", logger="recondreamer.restorer.training"):
+    with caplog.at_level("INFO", logger="recondreamer.generative.training"):
         _train(world, tmp_path / "r.pt", checkpoint_every=1)
     assert "resuming from" in caplog.text and "at step 1" in caplog.text
     assert not state_file.exists()

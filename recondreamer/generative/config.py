@@ -6,30 +6,51 @@ Defaults are sized for the embedded synthetic benchmark on a 2-core CPU: 240x160
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
+
+from recondreamer.errors import ConfigValueError
 
 ARCHS = ("sd", "svd", "dd2", "dd2_mask")
 WORLD_MODEL_ARCHS = ("sd", "svd", "dd2")
+
+
+def check_at_least(config, low: float, names: tuple[str, ...]) -> None:
+    """Every field in ``names`` (each item of a tuple field) at least ``low``."""
+    for name in names:
+        value = getattr(config, name)
+        if min(value if isinstance(value, tuple) else (value,)) < low:
+            raise ConfigValueError(name, f"must be >= {low}, got {value}")
+
+
+def check_fraction(config, name: str, closed_high: bool, open_low: bool = False) -> None:
+    """``name`` within [0, 1) (``closed_high`` False), [0, 1], or with ``open_low`` (0, 1]."""
+    value = getattr(config, name)
+    low_ok = value > 0.0 if open_low else value >= 0.0
+    high_ok = value <= 1.0 if closed_high else value < 1.0
+    if not (low_ok and high_ok):
+        interval = ("(" if open_low else "[") + "0, 1" + ("]" if closed_high else ")")
+        raise ConfigValueError(name, f"must be in {interval}, got {value}")
 
 
 @dataclass(frozen=True)
 class AutoencoderConfig:
     """The latent autoencoder E/D: ``downsample_factor``x smaller latents with ``latent_channels``."""
 
-    latent_channels: int = 4
+    latent_channels: int = 4  # channels of the latent space the diffusion models work in
     # One entry per resolution, full resolution first; narrow at full resolution where convs cost most.
     hidden_channels: tuple[int, ...] = (16, 48, 64)
-    # Training.
-    steps: int = 1500
-    batch_size: int = 8
+    steps: int = 1500  # training steps
+    batch_size: int = 8  # crops per step
     crop_size: int = 48  # random square crops of corpus frames (the network is fully convolutional)
-    learning_rate: float = 2e-3
+    learning_rate: float = 2e-3  # AdamW learning rate
     ssim_weight: float = 0.1  # small SSIM term beside L1 (no perceptual network is available)
 
     @property
     def downsample_factor(self) -> int:
         return 2 ** (len(self.hidden_channels) - 1)
+
+    def check(self) -> None:
+        check_at_least(self, 1, ("latent_channels", "steps", "batch_size", "crop_size"))
 
 
 @dataclass(frozen=True)
@@ -37,7 +58,7 @@ class UNetConfig:
     """A lean latent diffusion UNet; ``arch`` decides which conditions and temporal layers exist."""
 
     arch: str = "dd2"  # one of ARCHS
-    latent_channels: int = 4
+    latent_channels: int = 4  # channels of the latent space the diffusion models work in
     channels: tuple[int, ...] = (32, 64, 64)  # one entry per resolution level, finest first
     # Residual blocks per level on the way down and on the way up; the blocks past the first start
     # as the identity, so a UNet can be grown from a trained shallower one (unet.identity_res_block).
@@ -90,7 +111,7 @@ class MaskConfig:
     pixels never fall outside them. Sizes are fractions of the image height.
     """
 
-    probability: float = 0.5
+    probability: float = 0.5  # probability that a frame is masked
     band_half_width: float = 0.06  # half-width of the sky/scene boundary band
     boundary_boxes: tuple[int, int] = (2, 5)  # inclusive range of the number of boxes
     center_boxes: tuple[int, int] = (1, 2)
@@ -98,18 +119,21 @@ class MaskConfig:
     center_width: float = 0.4  # distant central region (around the vanishing point): width ...
     center_height: float = 0.22  # ... and height, as fractions of the image width and height
 
+    def check(self) -> None:
+        check_fraction(self, "probability", closed_high=True)
+
 
 @dataclass(frozen=True)
 class TrainConfig:
     """Optimisation of a world model or restorer."""
 
-    steps: int = 1200
+    steps: int = 1200  # training steps
     batch_size: int = 2  # clips per step
     window: int = 8  # frames per clip
     crop: tuple[int, int] = (24, 32)  # latent crop (h, w) used in training; 0,0 = whole latent
-    learning_rate: float = 1e-3
-    weight_decay: float = 0.0
-    warmup_steps: int = 50
+    learning_rate: float = 1e-3  # AdamW learning rate (linear warm-up, then cosine decay)
+    weight_decay: float = 0.0  # AdamW weight decay
+    warmup_steps: int = 50  # steps of linear learning-rate warm-up
     # Training timesteps have density proportional to t^(power - 1): 1 = uniform (pretraining);
     # > 1 favours the noisy steps where a restorer's few-step sampler spends its effort.
     timestep_power: float = 1.0
@@ -120,9 +144,16 @@ class TrainConfig:
     # 0 = the last weights. Batches of two clips make single steps noisy, and averaging them is
     # standard in diffusion training (training.run_training_loop).
     ema_decay: float = 0.0
-    checkpoint_every: int = 200
-    log_every: int = 50
-    seed: int = 0
+    checkpoint_every: int = 200  # steps between resume checkpoints
+    log_every: int = 50  # steps between progress lines
+    seed: int = 0  # random seed of initialisation, batches and noise
+
+    def check(self) -> None:
+        check_at_least(self, 1, ("steps", "batch_size", "window", "checkpoint_every", "log_every"))
+        check_at_least(self, 0, ("crop", "pixel_loss_weight", "seed"))
+        check_fraction(self, "ema_decay", closed_high=False)
+        if self.learning_rate <= 0 or self.timestep_power <= 0:
+            raise ConfigValueError("learning_rate" if self.learning_rate <= 0 else "timestep_power", "must be > 0")
 
 
 @dataclass(frozen=True)
@@ -145,42 +176,33 @@ class RefinerConfig:
     # scored best of bounds 2-64 and none on 4 scenes neither it nor its restorer trained on
     # (experiments/refiner_bound.py, docs/restorer.md).
     max_correction: float = 12.0
-    steps: int = 3000
+    steps: int = 3000  # training steps
     batch_size: int = 8  # crops per step
     crop: int = 64  # crop side in pixels
     # 1e-3 trained two 3000-step refiners but sent a 6000-step one to a loss spike (step 1200) after
     # which it returned its input unchanged; 5e-4 trained that job well (docs/restorer.md).
-    learning_rate: float = 5e-4
-    warmup_steps: int = 100
-    ema_decay: float = 0.0
-    checkpoint_every: int = 200
-    log_every: int = 50
-    seed: int = 0
+    learning_rate: float = 5e-4  # AdamW learning rate
+    warmup_steps: int = 100  # steps of linear learning-rate warm-up
+    ema_decay: float = 0.0  # decay of a moving average of the weights saved instead of the last ones (0: off)
+    checkpoint_every: int = 200  # steps between resume checkpoints
+    log_every: int = 50  # steps between progress lines
+    seed: int = 0  # random seed of initialisation and crops
 
-
-# What `train-restorer` uses unless told otherwise (docs/restorer.md): one DDIM step with residual
-# decoding when restoring (4 steps scored ~1 dB lower on held-out pairs), and training
-# timesteps with density ~ t^49, 95% of them above t = 940: the restorer learns the one step it
-# samples (t = 999). Against power 3 this gained +0.33 vs +0.13 dB on held-out pairs at 1000 steps
-# and +0.84 vs +0.62 dB at 3000; later DDIM steps are then barely trained.
-RESTORER_TIMESTEP_POWER = 50.0
-RESTORER_SAMPLE_STEPS = 1
-RESTORER_RESIDUAL_DECODING = True
-# Four noise draws averaged per window: +0.06-0.07 dB on held-out pairs over one draw, and less
-# flicker, for 1.5-1.6x the restore time (the autoencoder, run once, costs more than the UNet
-# passes).
-RESTORER_SAMPLES = 4
+    def check(self) -> None:
+        check_at_least(self, 1, ("width", "steps", "batch_size", "crop"))
+        check_at_least(self, 0, ("temporal_neighbours", "max_correction", "seed"))
+        check_fraction(self, "ema_decay", closed_high=False)
 
 
 @dataclass(frozen=True)
 class RestoreConfig:
     """Inference of a restorer over a clip of any length."""
 
-    window: int = 8
+    window: int = 8  # frames restored together
     overlap: int = 2  # frames shared by consecutive windows, linearly cross-faded in latent space
-    sample_steps: int = 10
+    sample_steps: int = 10  # DDIM steps
     strength: float = 1.0  # 1 = start from pure noise; < 1 starts from the noised degraded latent
-    seed: int = 0
+    seed: int = 0  # sampling seed
     # Decode the change only: output = input + D(z_restored) - D(E(input)). Pixels the restorer
     # leaves alone keep the input's detail instead of the autoencoder's reconstruction of it, so
     # the autoencoder's own error no longer caps the output's fidelity.
@@ -189,3 +211,20 @@ class RestoreConfig:
     # approach the output distribution's mean, the least-squares estimate, at that many UNet passes.
     samples: int = 1
 
+    def check(self) -> None:
+        check_at_least(self, 1, ("window", "sample_steps", "samples"))
+        check_at_least(self, 0, ("overlap", "seed"))
+        if self.overlap >= self.window:
+            raise ConfigValueError("overlap", f"must be smaller than the window ({self.window} frames), got {self.overlap}")
+        check_fraction(self, "strength", closed_high=True, open_low=True)
+
+
+# What `train-restorer` uses unless told otherwise (docs/restorer.md): one DDIM step with residual
+# decoding when restoring (4 steps scored ~1 dB lower on held-out pairs) and four noise draws
+# averaged per window (+0.06-0.07 dB on held-out pairs over one draw, and less flicker, for
+# 1.5-1.6x the restore time: the autoencoder, run once, costs more than the UNet passes); training
+# timesteps with density ~ t^49, 95% of them above t = 940: the restorer learns the one step it
+# samples (t = 999). Against power 3 this gained +0.33 vs +0.13 dB on held-out pairs at 1000 steps
+# and +0.84 vs +0.62 dB at 3000; later DDIM steps are then barely trained.
+RESTORER_RESTORE = RestoreConfig(sample_steps=1, residual_decoding=True, samples=4)
+RESTORER_TIMESTEP_POWER = 50.0

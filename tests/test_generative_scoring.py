@@ -1,4 +1,4 @@
-"""recondreamer.restorer.scoring: which clips a restorer is scored on (held-out scenes, or its
+"""recondreamer.generative.scoring: which clips a restorer is scored on (held-out scenes, or its
 training scenes), and how a clip and a set of clips are scored."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from recondreamer.restorer.scoring import flicker, mean_psnr, print_gain_table, score_clip, scored_clips, summarise
+from recondreamer.generative.scoring import flicker, mean_psnr, print_gain_table, score_clip, scored_clips, summarise
 
 RESTORER = SimpleNamespace(unet_config=SimpleNamespace(uses_structure=False))
 PAYLOAD = {"training_scenes": ["corpus-003"]}

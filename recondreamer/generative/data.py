@@ -26,7 +26,7 @@ import torch
 
 from recondreamer.errors import RecondreamerError
 from recondreamer.io import atomic_path
-from recondreamer.restorer.autoencoder import Autoencoder, encode_frames
+from recondreamer.generative.autoencoder import Autoencoder, encode_frames
 
 LOG = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ def scene_sky_masks(scene) -> np.ndarray | None:  # (T,H,W) bool or None
 
 
 def scene_vanishing_points(scene, cam_to_world: np.ndarray) -> np.ndarray:  # (T,2)
-    from recondreamer.restorer.masks import vanishing_point
+    from recondreamer.generative.masks import vanishing_point
 
     return np.stack([vanishing_point(scene.K, cam_to_world[t], scene.ego_to_world[t]) for t in range(scene.num_frames)])
 

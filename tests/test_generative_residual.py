@@ -7,14 +7,14 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from test_restorer_models import H, W, tiny_model
+from test_generative_models import H, W, tiny_model
 
-from recondreamer.restorer.autoencoder import decode_latents, encode_frames
-from recondreamer.restorer.config import DiffusionConfig
-from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
-from recondreamer.restorer.inference import restore_clip
-from recondreamer.restorer.training import residual_scale, sample_batch, unet_loss
+from recondreamer.generative.autoencoder import decode_latents, encode_frames
+from recondreamer.generative.config import DiffusionConfig
+from recondreamer.generative.data import Sequence
+from recondreamer.generative.diffusion import NoiseSchedule, diffusion_loss_and_estimate
+from recondreamer.generative.inference import restore_clip
+from recondreamer.generative.training import residual_scale, sample_batch, unet_loss
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -114,9 +114,9 @@ def test_residual_training_loss_targets_the_scaled_residual():
 
 
 def test_pair_latents_are_cached_per_autoencoder_and_equal_fresh_encodings(tmp_path):
-    from recondreamer.restorer.autoencoder import Autoencoder
-    from recondreamer.restorer.config import AutoencoderConfig
-    from recondreamer.restorer.data import autoencoder_digest, load_pair_sequences
+    from recondreamer.generative.autoencoder import Autoencoder
+    from recondreamer.generative.config import AutoencoderConfig
+    from recondreamer.generative.data import autoencoder_digest, load_pair_sequences
 
     rng = np.random.default_rng(0)
     gt = rng.integers(0, 256, size=(3, H, W, 3), dtype=np.uint8)
@@ -146,9 +146,9 @@ def test_pair_latents_are_cached_per_autoencoder_and_equal_fresh_encodings(tmp_p
 def test_pair_frames_are_memory_mapped_equal_the_pairs_file_and_remade_when_stale(tmp_path):
     import os
 
-    from recondreamer.restorer.autoencoder import Autoencoder
-    from recondreamer.restorer.config import AutoencoderConfig
-    from recondreamer.restorer.data import load_pair_sequences
+    from recondreamer.generative.autoencoder import Autoencoder
+    from recondreamer.generative.config import AutoencoderConfig
+    from recondreamer.generative.data import load_pair_sequences
 
     rng = np.random.default_rng(1)
     arrays = {

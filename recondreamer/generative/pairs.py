@@ -91,7 +91,7 @@ def make_pairs_for_run(
 
 def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict, out_dir: Path) -> Path:
     from recondreamer.recon import render_trajectory
-    from recondreamer.restorer.data import (
+    from recondreamer.generative.data import (
         scene_structure,
         scene_vanishing_points,
         structure_channel_names,

@@ -11,9 +11,9 @@ import torch
 
 from recondreamer.configs import from_dict, to_dict
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.restorer.autoencoder import Autoencoder
-from recondreamer.restorer.checkpoint import load_checkpoint
-from recondreamer.restorer.config import (
+from recondreamer.generative.autoencoder import Autoencoder
+from recondreamer.generative.checkpoint import load_checkpoint
+from recondreamer.generative.config import (
     AutoencoderConfig,
     DiffusionConfig,
     MaskConfig,
@@ -22,10 +22,10 @@ from recondreamer.restorer.config import (
     TrainConfig,
     UNetConfig,
 )
-from recondreamer.restorer.device import module_device, use_fast_conv_layout
-from recondreamer.restorer.diffusion import NoiseSchedule
-from recondreamer.restorer.refiner import PixelRefiner
-from recondreamer.restorer.unet import LatentUNet
+from recondreamer.device import module_device, use_fast_conv_layout
+from recondreamer.generative.diffusion import NoiseSchedule
+from recondreamer.generative.refiner import PixelRefiner
+from recondreamer.generative.unet import LatentUNet
 
 
 def autoencoder_from_payload(payload: dict) -> Autoencoder:

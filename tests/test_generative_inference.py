@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from test_restorer_models import STRUCTURE, H, W, tiny_model
+from test_generative_models import STRUCTURE, H, W, tiny_model
 
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.restorer import inference
-from recondreamer.restorer.autoencoder import decode_latents, encode_frames
-from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
-from recondreamer.restorer.config import RestoreConfig
-from recondreamer.restorer.data import structure_from_uint8, structure_to_uint8
-from recondreamer.restorer.inference import (
+from recondreamer.generative import inference
+from recondreamer.generative.autoencoder import decode_latents, encode_frames
+from recondreamer.generative.checkpoint import load_checkpoint, save_checkpoint
+from recondreamer.generative.config import RestoreConfig
+from recondreamer.generative.data import structure_from_uint8, structure_to_uint8
+from recondreamer.generative.inference import (
     blend_windows,
     clip_noise,
     generate_clip,
@@ -22,7 +22,7 @@ from recondreamer.restorer.inference import (
     restore_clip,
     window_starts,
 )
-from recondreamer.restorer.models import autoencoder_payload, model_config_dict
+from recondreamer.generative.models import autoencoder_payload, model_config_dict
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -75,7 +75,7 @@ def test_windowed_restoration_equals_single_window_restoration_without_overlap()
 
 def _sample_clip_from_noise(restorer, latents, structure, noise):
     """One window sampled directly with the DDIM sampler, as an independent reference."""
-    from recondreamer.restorer.diffusion import ddim_sample
+    from recondreamer.generative.diffusion import ddim_sample
 
     def model_fn(x, t):
         return restorer.unet(x, t, latents[0][None], structure=structure[None], degraded=latents[None])

@@ -1,4 +1,4 @@
-"""Choosing the torch device of the generative stack (``--device`` of its sub-commands).
+"""Choosing the torch device of every stage (``--device`` of the training, rendering and generative sub-commands).
 
 Models are built on the CPU (so a seed gives the same initial weights on any device) and moved
 to the chosen device; data sets (pre-encoded latents, pairs) stay on the CPU and each batch is

@@ -9,20 +9,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from test_restorer_models import H, STRUCTURE, W, tiny_model
+from test_generative_models import H, STRUCTURE, W, tiny_model
 
 from recondreamer.cli import main
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.restorer.autoencoder import frames_to_tensor, tensor_to_frames
-from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
+from recondreamer.generative.autoencoder import frames_to_tensor, tensor_to_frames
+from recondreamer.generative.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.configs import to_dict
 from recondreamer.errors import RecondreamerError
-from recondreamer.restorer.config import RefinerConfig, RestoreConfig
-from recondreamer.restorer.data import restored_pair_frames, structure_from_uint8
-from recondreamer.restorer.inference import load_restorer, restore_clip
-from recondreamer.restorer.models import autoencoder_payload, model_config_dict, refiner_from_payload
-from recondreamer.restorer.refiner import PixelChannelNorm, PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
-from recondreamer.restorer.training import RefinerExample, refiner_check_losses, restorer_digest, sample_refiner_batch, train_refiner
+from recondreamer.generative.config import RefinerConfig, RestoreConfig
+from recondreamer.generative.data import restored_pair_frames, structure_from_uint8
+from recondreamer.generative.inference import load_restorer, restore_clip
+from recondreamer.generative.models import autoencoder_payload, model_config_dict, refiner_from_payload
+from recondreamer.generative.refiner import PixelChannelNorm, PixelRefiner, neighbour_frames, neighbour_stack, refine_frames
+from recondreamer.generative.training import RefinerExample, refiner_check_losses, restorer_digest, sample_refiner_batch, train_refiner
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -312,7 +312,7 @@ def test_a_killed_refiner_job_resumes_and_matches_an_uninterrupted_one(tmp_path)
 
 def train_refiner_stopped_at(restorer_path: Path, pairs: Path, out: Path, stop_after: int) -> None:
     """Run the TINY refiner job and kill it (an exception) during the step after ``stop_after``."""
-    import recondreamer.restorer.training as training
+    import recondreamer.generative.training as training
 
     real = training.sample_refiner_batch
     calls = {"n": 0}
@@ -396,8 +396,8 @@ def test_train_refiner_command_rejects_bad_options(tmp_path, capsys):
     assert main([*base, "--samples", "0"]) == 1
     assert "--samples must be >= 1" in capsys.readouterr().err
     assert main([*base, "--max-correction", "-1"]) == 1
-    assert "--max-correction must be >= 0 grey levels" in capsys.readouterr().err
-    assert main([*base, "--steps", "1", "--batch-size", "1", "--crop", "16", "--width", "4", "--no-output-norm",
+    assert "--max-correction must be >= 0, got -1.0" in capsys.readouterr().err
+    assert main([*base, "--steps", "1", "--batch-size", "1", "--crop", "16", "--width", "4", "--output-norm", "off",
                  "--max-correction", "6"]) == 0
     written = load_restorer(tmp_path / "o.pt").refiner.config
     assert not written.output_norm and written.max_correction == 6.0

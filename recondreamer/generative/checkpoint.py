@@ -17,9 +17,9 @@ import torch
 from recondreamer.errors import CheckpointError
 from recondreamer.io import atomic_path
 from recondreamer.provenance import command_line
-from recondreamer.restorer.device import tensors_to_cpu
+from recondreamer.device import tensors_to_cpu
 
-FORMAT = "recondreamer.restorer"
+FORMAT = "recondreamer.restorer"  # the format tag every generative-stack checkpoint carries (the shipped weight set included)
 FORMAT_VERSION = 1
 KINDS = ("autoencoder", "world_model", "restorer", "training_state")
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from recondreamer.restorer.config import MaskConfig
+from recondreamer.generative.config import MaskConfig
 
 
 def vanishing_point(K: np.ndarray, cam_to_world: np.ndarray, ego_to_world: np.ndarray) -> np.ndarray:  # (2,) u, v

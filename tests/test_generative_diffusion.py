@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 import torch
 
-from recondreamer.restorer.config import DiffusionConfig
-from recondreamer.restorer.diffusion import (
+from recondreamer.generative.config import DiffusionConfig
+from recondreamer.generative.diffusion import (
     PREDICTIONS,
     NoiseSchedule,
     ddim_sample,

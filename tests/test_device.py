@@ -12,25 +12,25 @@ import torch
 
 from recondreamer.cli import build_parser, main
 from recondreamer.errors import RecondreamerError
-from recondreamer.restorer.autoencoder import Autoencoder
-from recondreamer.restorer.checkpoint import load_checkpoint, save_checkpoint
-from recondreamer.restorer.config import (
+from recondreamer.generative.autoencoder import Autoencoder
+from recondreamer.generative.checkpoint import load_checkpoint, save_checkpoint
+from recondreamer.generative.config import (
     AutoencoderConfig,
     DiffusionConfig,
     TrainConfig,
     UNetConfig,
 )
-from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.device import module_device, resolve_device, tensors_to_cpu
-from recondreamer.restorer.diffusion import NoiseSchedule, diffusion_loss_and_estimate
-from recondreamer.restorer.inference import load_restorer, restore_clip
-from recondreamer.restorer.models import (
+from recondreamer.generative.data import Sequence
+from recondreamer.device import module_device, resolve_device, tensors_to_cpu
+from recondreamer.generative.diffusion import NoiseSchedule, diffusion_loss_and_estimate
+from recondreamer.generative.inference import load_restorer, restore_clip
+from recondreamer.generative.models import (
     GenerativeModel,
     autoencoder_payload,
     model_config_dict,
 )
-from recondreamer.restorer.training import sample_batch, unet_loss
-from recondreamer.restorer.unet import LatentUNet
+from recondreamer.generative.training import sample_batch, unet_loss
+from recondreamer.generative.unet import LatentUNet
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -214,13 +214,13 @@ def test_cuda_training_loss_and_gradients_match_the_cpu():
 def test_commands_train_and_sample_on_cuda_and_their_checkpoints_load_on_the_cpu(tmp_path):
     from scipy import ndimage
 
-    from recondreamer.restorer.data import (
+    from recondreamer.generative.data import (
         scene_sky_masks,
         scene_structure,
         scene_vanishing_points,
         structure_channel_names,
     )
-    from recondreamer.restorer.frames_io import read_frames
+    from recondreamer.generative.frames_io import read_frames
     from recondreamer.scene import load_scene, write_scene
     from recondreamer.sources.synthetic import generate_segment
 

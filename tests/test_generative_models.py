@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from recondreamer.restorer.autoencoder import Autoencoder, decode_latents, encode_frames
-from recondreamer.restorer.config import ARCHS, AutoencoderConfig, DiffusionConfig, TrainConfig, UNetConfig
-from recondreamer.restorer.data import Sequence
-from recondreamer.restorer.diffusion import NoiseSchedule, ddim_sample
-from recondreamer.restorer.inference import restore_clip
-from recondreamer.restorer.models import GenerativeModel, restorer_unet_from_world_model
-from recondreamer.restorer.training import sample_batch, unet_loss
-from recondreamer.restorer.unet import LatentUNet
+from recondreamer.generative.autoencoder import Autoencoder, decode_latents, encode_frames
+from recondreamer.generative.config import ARCHS, AutoencoderConfig, DiffusionConfig, TrainConfig, UNetConfig
+from recondreamer.generative.data import Sequence
+from recondreamer.generative.diffusion import NoiseSchedule, ddim_sample
+from recondreamer.generative.inference import restore_clip
+from recondreamer.generative.models import GenerativeModel, restorer_unet_from_world_model
+from recondreamer.generative.training import sample_batch, unet_loss
+from recondreamer.generative.unet import LatentUNet
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -202,8 +202,8 @@ def test_restore_clip_is_deterministic_under_a_seed():
 
 
 def test_masked_restorer_batches_encode_the_masked_degraded_frames():
-    from recondreamer.restorer.autoencoder import frames_to_tensor
-    from recondreamer.restorer.config import MaskConfig
+    from recondreamer.generative.autoencoder import frames_to_tensor
+    from recondreamer.generative.config import MaskConfig
 
     ae = Autoencoder(AutoencoderConfig(hidden_channels=(8, 8, 8))).eval()
     rng = np.random.default_rng(0)
@@ -219,7 +219,7 @@ def test_masked_restorer_batches_encode_the_masked_degraded_frames():
     # Replay the same draws to know which pixels were masked.
     replay = np.random.default_rng(5)
     replay.integers(1), replay.integers(0, 1), replay.integers(0, 1), replay.integers(0, 1), replay.integers(1)
-    from recondreamer.restorer.masks import sample_clip_masks
+    from recondreamer.generative.masks import sample_clip_masks
 
     keep = sample_clip_masks(4, H, W, always, replay, seq.vanishing)
     assert (~keep).any(axis=(1, 2)).all()

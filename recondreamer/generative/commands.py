@@ -7,18 +7,36 @@ import dataclasses
 import logging
 import time
 
-from recondreamer.restorer.config import ARCHS, WORLD_MODEL_ARCHS
+from recondreamer.cli_options import add_config_options, apply_options
+from recondreamer.generative.config import (
+    ARCHS,
+    RESTORER_RESTORE,
+    RESTORER_TIMESTEP_POWER,
+    WORLD_MODEL_ARCHS,
+    AutoencoderConfig,
+    MaskConfig,
+    RefinerConfig,
+    RestoreConfig,
+    TrainConfig,
+)
 
 LOG = logging.getLogger(__name__)
+
+AUTOENCODER_OPTIONS = ("steps", "latent_channels")
+TRAIN_OPTIONS = ("steps", "batch_size", "window", "crop", "learning_rate", "timestep_power", "ema_decay", "seed")
+RESTORER_TRAIN_OPTIONS = TRAIN_OPTIONS + ("pixel_loss_weight",)
+RESTORE_OPTIONS = ("sample_steps", "strength", "samples", "residual_decoding")
+MASK_OPTIONS = ("probability",)
+REFINER_OPTIONS = ("steps", "batch_size", "crop", "width", "temporal_neighbours", "learning_rate", "ema_decay", "seed",
+                   "use_structure", "output_norm", "max_correction")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("train-autoencoder", help="train the latent autoencoder on corpus frames")
     p.add_argument("--corpus", required=True, help="corpus directory (scene directories below it) or one scene directory")
     p.add_argument("--out", required=True, help="autoencoder checkpoint to write")
-    p.add_argument("--steps", type=int, default=None, help="training steps (default from AutoencoderConfig)")
-    p.add_argument("--latent-channels", type=int, default=None, help="latent channels (default 4)")
-    p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    add_config_options(p, AutoencoderConfig, AUTOENCODER_OPTIONS)
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_train_autoencoder)
@@ -33,7 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="UNet channels per resolution level, finest first (default 32 64 64 from UNetConfig); spatial attention "
         "on the coarsest level only, temporal attention on every level",
     )
-    _add_train_options(p)
+    add_config_options(p, TrainConfig, TRAIN_OPTIONS, title="training (TrainConfig)")
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_pretrain_world_model)
@@ -56,17 +74,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--world-model", required=True, help="pretrained world-model checkpoint of the matching arch")
     p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files")
     p.add_argument("--out", required=True, help="restorer checkpoint to write")
-    p.add_argument("--mask-probability", type=float, default=None, help="dd2_mask: probability that a frame is masked (default from MaskConfig)")
-    p.add_argument("--sample-steps", type=int, default=None, help="default DDIM steps stored for restoring (default 1)")
-    p.add_argument("--strength", type=float, default=None, help="default restore strength stored in the checkpoint (default from RestoreConfig)")
-    p.add_argument(
-        "--samples", type=int, default=None,
-        help="default noise draws averaged per restored window, stored in the checkpoint (default 4)",
-    )
-    p.add_argument(
-        "--residual-decoding", choices=["on", "off"], default=None,
-        help="store whether restoring decodes only the change and adds it to the input (default on)",
-    )
+    add_config_options(p, MaskConfig, MASK_OPTIONS, prefix="mask-", title="dd2_mask training masks (MaskConfig)")
+    add_config_options(p, RestoreConfig, RESTORE_OPTIONS, defaults=RESTORER_RESTORE, title="restore settings stored in the checkpoint (RestoreConfig)")
     p.add_argument(
         "--target-space", choices=["residual", "clean"], default="residual",
         help="what the restorer diffuses: residual = (clean - degraded) latents, so a zero output is the identity "
@@ -82,12 +91,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="residual blocks per UNet level, down and up (default: the --init-restorer's, else the world model's: 1); blocks past those "
         "start as the identity, so a deeper restorer can be grown from a trained one",
     )
-    p.add_argument(
-        "--pixel-loss-weight", type=float, default=None,
-        help="weight of an image-space loss (MSE of the decoded one-step sample against ground truth, [-1,1] pixel "
-        "units) added to the diffusion loss; 0 = diffusion loss only (default 0)",
+    add_config_options(
+        p, TrainConfig, RESTORER_TRAIN_OPTIONS, title="training (TrainConfig)",
+        defaults={"*": "the world model's", "timestep_power": f"{RESTORER_TIMESTEP_POWER:g}", "pixel_loss_weight": "0"},
     )
-    _add_train_options(p)
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_train_restorer)
@@ -103,20 +110,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="noise draws the restorer averages per window, for the outputs the refiner learns from and in the written "
         "checkpoint (default: the restorer's own)",
     )
-    p.add_argument("--steps", type=int, default=None, help="training steps (default from RefinerConfig: 3000)")
-    p.add_argument("--batch-size", type=int, default=None, help="pixel crops per step (default 8)")
-    p.add_argument("--crop", type=int, default=None, help="side of the square training crops in pixels (default 64)")
-    p.add_argument("--width", type=int, default=None, help="refiner channels at full resolution (default 24)")
-    p.add_argument("--temporal-neighbours", type=int, default=None,
-                   help="also show the refiner this many restored and degraded frames before and after each one (default 0)")
-    p.add_argument("--learning-rate", type=float, default=None, help="AdamW learning rate (default 5e-4)")
-    p.add_argument("--ema-decay", type=float, default=None, help="EMA of the weights saved instead of the last ones (default 0: off)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    p.add_argument("--no-structure", action="store_true", help="do not show the refiner the structure maps (dd2 archs)")
-    p.add_argument("--no-output-norm", action="store_true",
-                   help="build the refiner without the channel norm before its last conv (as checkpoints without an output_norm entry load)")
-    p.add_argument("--max-correction", type=float, default=None,
-                   help="largest change the refiner may make to a pixel, in grey levels of 255 (default 12; 0: unbounded)")
+    add_config_options(p, RefinerConfig, REFINER_OPTIONS)
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_train_refiner)
@@ -168,31 +162,9 @@ def _add_device_option(p: argparse.ArgumentParser) -> None:
 
 
 def _device(args: argparse.Namespace):
-    from recondreamer.restorer.device import resolve_device
+    from recondreamer.device import resolve_device
 
     return resolve_device(args.device, "--device")
-
-
-def _add_train_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--steps", type=int, default=None, help="training steps (default from TrainConfig)")
-    p.add_argument("--batch-size", type=int, default=None, help="clips per step (default from TrainConfig)")
-    p.add_argument("--window", type=int, default=None, help="frames per clip (default from TrainConfig)")
-    p.add_argument("--learning-rate", type=float, default=None, help="AdamW learning rate (default from TrainConfig)")
-    p.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
-    p.add_argument(
-        "--crop", type=int, nargs=2, default=None, metavar=("H", "W"),
-        help="latent crop (h w) of training clips; 0 0 = whole latents (default from TrainConfig)",
-    )
-    p.add_argument(
-        "--ema-decay", type=float, default=None,
-        help="keep an exponential moving average of the weights with this decay and save it (0 = the last weights; "
-        "default from TrainConfig: 0); pick it so that decay^steps is small, e.g. 0.995 for 1000 steps",
-    )
-    p.add_argument(
-        "--timestep-power", type=float, default=None,
-        help="training timesteps drawn with density ~ t^(power-1): 1 = uniform, > 1 favours the noisy steps a "
-        "few-step sampler visits (default 1 for world models, 50 for restorers: almost only the t = 999 of 1-step restoring)",
-    )
 
 
 def _add_sampling_options(p: argparse.ArgumentParser) -> None:
@@ -201,43 +173,13 @@ def _add_sampling_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=None, help="sampling seed (default from the checkpoint)")
 
 
-def _check_train_options(args: argparse.Namespace) -> None:
-    """Reject bad training options before any model or data is loaded."""
-    from recondreamer.errors import RecondreamerError
-
-    if args.ema_decay is not None and not 0.0 <= args.ema_decay < 1.0:
-        raise RecondreamerError(f"--ema-decay must be in [0, 1), got {args.ema_decay}")
-    pixel_loss_weight = getattr(args, "pixel_loss_weight", None)  # train-restorer only
-    if pixel_loss_weight is not None and pixel_loss_weight < 0.0:
-        raise RecondreamerError(f"--pixel-loss-weight must be >= 0, got {pixel_loss_weight}")
-    blocks_per_level = getattr(args, "blocks_per_level", None)  # train-restorer only
-    if blocks_per_level is not None and blocks_per_level < 1:
-        raise RecondreamerError(f"--blocks-per-level must be >= 1, got {blocks_per_level}")
-
-
-def _train_config(args: argparse.Namespace, base=None):
-    from recondreamer.restorer.config import TrainConfig
-
-    overrides = {
-        "steps": args.steps, "batch_size": args.batch_size, "window": args.window,
-        "learning_rate": args.learning_rate, "seed": args.seed, "timestep_power": args.timestep_power,
-        "crop": None if args.crop is None else tuple(args.crop), "ema_decay": args.ema_decay,
-    }
-    return dataclasses.replace(base or TrainConfig(), **{k: v for k, v in overrides.items() if v is not None})
-
-
 def run_train_autoencoder(args: argparse.Namespace) -> int:
-    from recondreamer.restorer.config import AutoencoderConfig
-    from recondreamer.restorer.data import load_corpus_frames
-    from recondreamer.restorer.training import train_autoencoder
+    from recondreamer.generative.data import load_corpus_frames
+    from recondreamer.generative.training import train_autoencoder
 
+    config = apply_options(args, AutoencoderConfig(), AUTOENCODER_OPTIONS)
     _set_threads(args)
     device = _device(args)
-    config = AutoencoderConfig()
-    if args.steps is not None:
-        config = dataclasses.replace(config, steps=args.steps)
-    if args.latent_channels is not None:
-        config = dataclasses.replace(config, latent_channels=args.latent_channels)
     scene_ids, frames = load_corpus_frames(args.corpus)
     LOG.info("autoencoder corpus: %d scenes (%s)", len(scene_ids), ", ".join(scene_ids))
     metrics = train_autoencoder(frames, args.out, config, seed=args.seed, device=device)
@@ -247,15 +189,15 @@ def run_train_autoencoder(args: argparse.Namespace) -> int:
 
 def run_pretrain_world_model(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
-    from recondreamer.restorer.config import DiffusionConfig, UNetConfig
-    from recondreamer.restorer.data import (
+    from recondreamer.generative.config import DiffusionConfig, UNetConfig
+    from recondreamer.generative.data import (
         load_corpus_sequences,
         structure_channel_names,
     )
-    from recondreamer.restorer.models import load_autoencoder
-    from recondreamer.restorer.training import pretrain_world_model
+    from recondreamer.generative.models import load_autoencoder
+    from recondreamer.generative.training import pretrain_world_model
 
-    _check_train_options(args)
+    train = apply_options(args, TrainConfig(), TRAIN_OPTIONS)
     _set_threads(args)
     device = _device(args)
     autoencoder, _ = load_autoencoder(args.autoencoder, device)
@@ -279,14 +221,14 @@ def run_pretrain_world_model(args: argparse.Namespace) -> int:
     f = autoencoder.config.downsample_factor
     frame_size = (sequences[0].target.shape[-2] * f, sequences[0].target.shape[-1] * f)
     stats = pretrain_world_model(
-        sequences, autoencoder, unet_config, DiffusionConfig(), _train_config(args), names, frame_size, args.out, device
+        sequences, autoencoder, unet_config, DiffusionConfig(), train, names, frame_size, args.out, device
     )
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
 
 
 def run_make_pairs(args: argparse.Namespace) -> int:
-    from recondreamer.restorer.pairs import make_pairs_for_run
+    from recondreamer.generative.pairs import make_pairs_for_run
 
     _set_threads(args)
     for run in args.run:
@@ -297,41 +239,23 @@ def run_make_pairs(args: argparse.Namespace) -> int:
 
 def run_train_restorer(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
-    from recondreamer.restorer.config import (
-        RESTORER_RESIDUAL_DECODING,
-        RESTORER_SAMPLE_STEPS,
-        RESTORER_SAMPLES,
-        RESTORER_TIMESTEP_POWER,
-        MaskConfig,
-        RestoreConfig,
-    )
-    from recondreamer.restorer.data import find_pairs_files, load_pair_sequences
-    from recondreamer.restorer.inference import load_world_model
-    from recondreamer.restorer.training import train_restorer
+    from recondreamer.generative.data import find_pairs_files, load_pair_sequences
+    from recondreamer.generative.inference import load_world_model
+    from recondreamer.generative.training import train_restorer
 
-    _check_train_options(args)
+    if args.blocks_per_level is not None and args.blocks_per_level < 1:
+        raise RecondreamerError(f"--blocks-per-level must be >= 1, got {args.blocks_per_level}")
+    masks = apply_options(args, MaskConfig(), MASK_OPTIONS, prefix="mask-") if args.arch == "dd2_mask" else None
+    restore = apply_options(args, RESTORER_RESTORE, RESTORE_OPTIONS)
+    apply_options(args, TrainConfig(), RESTORER_TRAIN_OPTIONS)  # the options' ranges, before any model is loaded
     _set_threads(args)
     device = _device(args)
     world = load_world_model(args.world_model, device)
-    masks = None
-    if args.arch == "dd2_mask":
-        masks = MaskConfig() if args.mask_probability is None else dataclasses.replace(MaskConfig(), probability=args.mask_probability)
-    train = _train_config(args, world.train_config)
-    if args.timestep_power is None:
-        train = dataclasses.replace(train, timestep_power=RESTORER_TIMESTEP_POWER)
-    train = dataclasses.replace(train, pixel_loss_weight=args.pixel_loss_weight or 0.0)
+    restorer_recipe = dataclasses.replace(world.train_config, timestep_power=RESTORER_TIMESTEP_POWER, pixel_loss_weight=0.0)
+    train = apply_options(args, restorer_recipe, RESTORER_TRAIN_OPTIONS)
     files = find_pairs_files(args.pairs)
     keep_frames = masks is not None or train.pixel_loss_weight > 0.0
     sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=keep_frames)
-    restore = RestoreConfig(sample_steps=RESTORER_SAMPLE_STEPS, residual_decoding=RESTORER_RESIDUAL_DECODING, samples=RESTORER_SAMPLES)
-    overrides = {"sample_steps": args.sample_steps, "strength": args.strength, "samples": args.samples}
-    if args.residual_decoding is not None:
-        overrides["residual_decoding"] = args.residual_decoding == "on"
-    restore = dataclasses.replace(restore, **{k: v for k, v in overrides.items() if v is not None})
-    if not 0.0 < restore.strength <= 1.0 or restore.sample_steps < 1 or restore.samples < 1:
-        raise RecondreamerError(
-            f"--strength must be in (0, 1], --sample-steps and --samples >= 1, got {restore.strength}, {restore.sample_steps} and {restore.samples}"
-        )
     stats = train_restorer(
         world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device, args.init_restorer,
         args.blocks_per_level,
@@ -342,26 +266,10 @@ def run_train_restorer(args: argparse.Namespace) -> int:
 
 def run_train_refiner(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
-    from recondreamer.restorer.config import RefinerConfig
-    from recondreamer.restorer.data import find_pairs_files
-    from recondreamer.restorer.training import train_refiner
+    from recondreamer.generative.data import find_pairs_files
+    from recondreamer.generative.training import train_refiner
 
-    overrides = {
-        "steps": args.steps, "batch_size": args.batch_size, "crop": args.crop, "width": args.width,
-        "learning_rate": args.learning_rate, "ema_decay": args.ema_decay, "seed": args.seed,
-        "temporal_neighbours": args.temporal_neighbours, "max_correction": args.max_correction,
-    }
-    overrides = {k: v for k, v in overrides.items() if v is not None}
-    config = dataclasses.replace(RefinerConfig(), use_structure=not args.no_structure, output_norm=not args.no_output_norm, **overrides)
-    for name in ("steps", "batch_size", "crop", "width"):
-        if getattr(config, name) < 1:
-            raise RecondreamerError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(config, name)}")
-    if config.temporal_neighbours < 0:
-        raise RecondreamerError(f"--temporal-neighbours must be >= 0, got {config.temporal_neighbours}")
-    if not 0.0 <= config.ema_decay < 1.0:
-        raise RecondreamerError(f"--ema-decay must be in [0, 1), got {config.ema_decay}")
-    if config.max_correction < 0:
-        raise RecondreamerError(f"--max-correction must be >= 0 grey levels (0: unbounded), got {config.max_correction}")
+    config = apply_options(args, RefinerConfig(), REFINER_OPTIONS)
     if args.samples is not None and args.samples < 1:
         raise RecondreamerError(f"--samples must be >= 1, got {args.samples}")
     _set_threads(args)
@@ -375,7 +283,7 @@ def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
     import numpy as np
 
     from recondreamer.errors import RecondreamerError
-    from recondreamer.restorer.data import scene_structure
+    from recondreamer.generative.data import scene_structure
     from recondreamer.scene import load_scene
     from recondreamer.scene.trajectories import trajectory_cam_to_world
 
@@ -392,8 +300,8 @@ def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
 def run_restore(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
-    from recondreamer.restorer.frames_io import read_frames, write_frames
-    from recondreamer.restorer.inference import load_restorer, restore_clip
+    from recondreamer.generative.frames_io import read_frames, write_frames
+    from recondreamer.generative.inference import load_restorer, restore_clip
 
     check_replaceable(args.out, "frames")
     _set_threads(args)
@@ -416,8 +324,8 @@ def run_restore(args: argparse.Namespace) -> int:
 def run_dd4d_generate(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
-    from recondreamer.restorer.frames_io import write_frames
-    from recondreamer.restorer.inference import generate_clip, load_world_model
+    from recondreamer.generative.frames_io import write_frames
+    from recondreamer.generative.inference import generate_clip, load_world_model
 
     check_replaceable(args.out, "frames")
     _set_threads(args)

@@ -13,8 +13,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from recondreamer.restorer.config import AutoencoderConfig
-from recondreamer.restorer.device import module_device
+from recondreamer.generative.config import AutoencoderConfig
+from recondreamer.device import module_device
 
 
 class PlainResBlock(nn.Module):
