@@ -182,7 +182,7 @@ def feature_choice_table(results: Path, models_dir: Path, config_path: Path | No
     import yaml
 
     from recondreamer.evaluation import frechet, inference
-    from recondreamer.evaluation.renders import load_render_frames
+    from recondreamer.frames_io import read_frame_folder
     from recondreamer.experiment_plan import ExperimentPlan
     from recondreamer.scene import load_scene
 
@@ -214,7 +214,7 @@ def feature_choice_table(results: Path, models_dir: Path, config_path: Path | No
                 if run is None:
                     frames = np.stack([sc.novel_image(trajectory, t) for t in range(sc.num_frames)])
                 else:
-                    frames = load_render_frames(results / "renders" / s / run / trajectory, sc.num_frames, sc.width, sc.height)
+                    frames = read_frame_folder(results / "renders" / s / run / trajectory, sc.num_frames, (sc.width, sc.height))
                 per_run[label].append(pools(frames))
         for name, pick in choices.items():
             ref = np.concatenate([pick(reference[s]) for s in scenes])

@@ -220,7 +220,7 @@ def test_commands_train_and_sample_on_cuda_and_their_checkpoints_load_on_the_cpu
         scene_vanishing_points,
         structure_channel_names,
     )
-    from recondreamer.generative.frames_io import read_frames
+    from recondreamer.frames_io import read_clip
     from recondreamer.scene import load_scene, write_scene
     from recondreamer.sources.synthetic import generate_segment
 
@@ -250,11 +250,11 @@ def test_commands_train_and_sample_on_cuda_and_their_checkpoints_load_on_the_cpu
                str(tmp_path / "renders.npy"), "--trajectory", "original"]
     assert main([*restore, "--out", str(tmp_path / "on_cuda"), *cuda]) == 0
     assert main([*restore, "--out", str(tmp_path / "on_cpu")]) == 0
-    difference = np.abs(read_frames(tmp_path / "on_cuda").astype(np.int16) - read_frames(tmp_path / "on_cpu").astype(np.int16))
+    difference = np.abs(read_clip(tmp_path / "on_cuda").astype(np.int16) - read_clip(tmp_path / "on_cpu").astype(np.int16))
     assert difference.max() <= 3 and difference.mean() < 0.1
     assert main(["dd4d-generate", "--world-model", str(tmp_path / "wm.pt"), "--scene", str(scene.path), "--trajectory",
                  "shift@3", "--out", str(tmp_path / "dd4d"), "--steps", "2", *cuda]) == 0
-    assert read_frames(tmp_path / "dd4d").shape == gt.shape
+    assert read_clip(tmp_path / "dd4d").shape == gt.shape
 
 
 def test_pretrain_world_model_takes_the_unet_width_and_refuses_bad_ones(tmp_path, capsys):

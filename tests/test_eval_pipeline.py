@@ -11,7 +11,7 @@ from recondreamer.cli import main
 from recondreamer.errors import CheckpointError
 from recondreamer.evaluation import frechet, gates, inference, lanes, nta_iou
 from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
-from recondreamer.evaluation.renders import RenderError, load_render_frames
+from recondreamer.frames_io import FrameError, read_frame_folder
 from recondreamer.evaluation.training import detector_targets
 from recondreamer.scene.structure import project_boxes_2d
 from recondreamer.scene.types import Box
@@ -261,12 +261,12 @@ def test_bad_renders_give_errors_naming_the_file(scene, scene_dir, tiny_models, 
     frames = np.stack([scene.image(t) for t in range(scene.num_frames)])
     missing = _write_frames(tmp_path / "missing", frames)
     (missing / "004.png").unlink()
-    with pytest.raises(RenderError, match="004.png"):
-        load_render_frames(missing, scene.num_frames, scene.width, scene.height)
+    with pytest.raises(FrameError, match="004.png"):
+        read_frame_folder(missing, scene.num_frames, (scene.width, scene.height))
     wrong = _write_frames(tmp_path / "wrong", frames)
     Image.fromarray(frames[2][:32]).save(wrong / "002.png")
-    with pytest.raises(RenderError, match=r"002.png: frame is 96x32"):
-        load_render_frames(wrong, scene.num_frames, scene.width, scene.height)
+    with pytest.raises(FrameError, match=r"002.png: frame is 96x32"):
+        read_frame_folder(wrong, scene.num_frames, (scene.width, scene.height))
     code = main(["evaluate", "--scene", str(scene_dir), "--renders", str(missing), "--trajectory", "shift@3", "--models", str(tiny_models), "--out", str(tmp_path / "m.json")])
     assert code == 1 and "004.png" in capsys.readouterr().err
     assert not (tmp_path / "m.json").exists()

@@ -188,7 +188,7 @@ def _fid_pool(args: argparse.Namespace) -> int:
 
 
 def _judge(args: argparse.Namespace) -> int:
-    from recondreamer.evaluation.renders import load_render_frames
+    from recondreamer.frames_io import read_frame_folder
     from recondreamer.evaluation.study import Comparison, judge_pair, parse_method, win_rates
     from recondreamer.io import write_json_atomic
     from recondreamer.scene import load_scene
@@ -205,8 +205,8 @@ def _judge(args: argparse.Namespace) -> int:
                 raise RecondreamerError(f"{scene_dir}: no true views of trajectory {trajectory!r} to judge against (has {scene.novel_trajectories or 'none'})")
             truth = [scene.novel_image(trajectory, t) for t in range(scene.num_frames)]
         (name_a, dir_a), (name_b, dir_b) = parse_method(first), parse_method(second)
-        frames_a = load_render_frames(dir_a, scene.num_frames, scene.width, scene.height)
-        frames_b = load_render_frames(dir_b, scene.num_frames, scene.width, scene.height)
+        frames_a = read_frame_folder(dir_a, scene.num_frames, (scene.width, scene.height))
+        frames_b = read_frame_folder(dir_b, scene.num_frames, (scene.width, scene.height))
         verdict, score_a, score_b = judge_pair(truth, frames_a, frames_b, args.metric)
         winner = {"a": name_a, "b": name_b, "tie": None}[verdict]
         comparisons.append(Comparison(trajectory, name_a, name_b, winner))

@@ -12,7 +12,7 @@ import numpy as np
 
 from recondreamer.errors import RecondreamerError
 from recondreamer.evaluation import frechet, image_metrics, inference, lanes, nta_iou
-from recondreamer.evaluation.renders import load_render_frames
+from recondreamer.frames_io import read_frame_folder
 
 log = logging.getLogger(__name__)
 
@@ -159,7 +159,7 @@ def evaluate_scene(scene_dir: str | Path, renders: list[tuple[str, str | Path]],
             scene.trajectory(name)
         except ValueError as error:
             raise RecondreamerError(f"--trajectory {name}: {error}") from None
-    frames_by_name = {name: load_render_frames(directory, scene.num_frames, scene.width, scene.height) for name, directory in renders}
+    frames_by_name = {name: read_frame_folder(directory, scene.num_frames, (scene.width, scene.height)) for name, directory in renders}
     reference = np.stack([scene.image(t) for t in range(scene.num_frames)])
     reference_features = inference.fid_features(models.features.module, reference)
     features = {"reference": reference_features}

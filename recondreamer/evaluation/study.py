@@ -22,6 +22,7 @@ from PIL import Image
 
 from recondreamer.errors import RecondreamerError
 from recondreamer.evaluation import image_metrics
+from recondreamer.frames_io import frame_files
 from recondreamer.io import atomic_path, write_text_atomic
 
 JUDGE_METRICS = ("ssim", "psnr")
@@ -106,21 +107,10 @@ def parse_method(text: str) -> tuple[str, Path]:
     return name, Path(directory)
 
 
-def _frame_files(directory: Path) -> list[Path]:
-    from recondreamer.evaluation.renders import RENDER_SUFFIXES, RenderError
-
-    if not directory.is_dir():
-        raise RenderError(f"render directory {directory} does not exist")
-    files = sorted((p for p in directory.iterdir() if p.suffix.lower() in RENDER_SUFFIXES and p.stem.isdigit()), key=lambda p: int(p.stem))
-    if not files:
-        raise RenderError(f"render directory {directory} holds no numbered PNG/JPEG frames")
-    return files
-
-
 def write_animation(directory: Path, out: Path, fps: float, max_width: int | None) -> None:
     """An animated WebP or GIF (by ``out``'s suffix) of a directory of numbered frames."""
     frames = []
-    for path in _frame_files(directory):
+    for path in frame_files(directory):
         with Image.open(path) as image:
             frame = image.convert("RGB")
         if max_width and frame.width > max_width:

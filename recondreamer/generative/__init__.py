@@ -5,6 +5,6 @@ Modules: ``config`` (dataclass configs), ``autoencoder``, ``unet``, ``diffusion`
 ``masks`` (dd2_mask training masks), ``data`` (corpus and pairs as latents), ``pairs``
 (``make-pairs``), ``training``, ``models`` (checkpoints -> models), ``inference``
 (``restore_clip``, ``generate_clip``), ``scoring`` (a restored clip against its truth), ``checkpoint``,
-``frames_io``, ``commands`` (CLI).
+``commands`` (CLI). Clips on disk: ``recondreamer.frames_io``.
 Nothing is imported here, so ``recondreamer --help`` does not load torch.
 """

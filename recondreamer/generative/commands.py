@@ -300,13 +300,13 @@ def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
 def run_restore(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
-    from recondreamer.generative.frames_io import read_frames, write_frames
+    from recondreamer.frames_io import read_clip, write_frames
     from recondreamer.generative.inference import load_restorer, restore_clip
 
     check_replaceable(args.out, "frames")
     _set_threads(args)
     restorer = load_restorer(args.restorer, _device(args))
-    renders = read_frames(args.renders, args.trajectory)
+    renders = read_clip(args.renders, args.trajectory)
     scene, reference, structure = _scene_conditions(args.scene, args.trajectory, restorer.unet_config.uses_structure)
     if renders.shape != reference.shape:
         raise RecondreamerError(f"{args.renders}: renders {renders.shape} do not match the scene's frames {reference.shape} (T,H,W,3)")
@@ -324,7 +324,7 @@ def run_restore(args: argparse.Namespace) -> int:
 def run_dd4d_generate(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
-    from recondreamer.generative.frames_io import write_frames
+    from recondreamer.frames_io import write_frames
     from recondreamer.generative.inference import generate_clip, load_world_model
 
     check_replaceable(args.out, "frames")

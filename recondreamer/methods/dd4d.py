@@ -75,7 +75,7 @@ def load_generated_videos(scene, generated_dir: str | Path, trajectories: tuple[
     Poses follow from the trajectory name, as in ``generate_videos``; the folder's ``info.json``
     must name this scene, so that a video of another segment is refused rather than trained on.
     """
-    from recondreamer.generative.frames_io import read_frames
+    from recondreamer.frames_io import read_frame_folder
 
     videos = []
     for name in trajectories:
@@ -88,7 +88,7 @@ def load_generated_videos(scene, generated_dir: str | Path, trajectories: tuple[
         if info.get("scene_id", scene.scene_id) != scene.scene_id or info.get("trajectory", name) != name:
             raise RecondreamerError(f"{info_path}: generated for scene {info.get('scene_id')!r} along "
                                     f"{info.get('trajectory')!r}, not scene {scene.scene_id!r} along {name!r}")
-        frames = read_frames(folder)  # (T,H,W,3) uint8
+        frames = read_frame_folder(folder)  # (T,H,W,3) uint8
         expected = (scene.num_frames, scene.height, scene.width, 3)
         if frames.shape != expected:
             raise RecondreamerError(f"{folder}: frames {frames.shape} do not fit the scene's {expected} (T,H,W,3)")
