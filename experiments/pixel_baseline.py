@@ -44,7 +44,8 @@ def main() -> None:
     from recondreamer.generative.config import RefinerConfig
     from recondreamer.generative.data import find_pairs_files, load_pairs_file, mapped_pair_arrays, structure_from_uint8
     from recondreamer.generative.refiner import PixelRefiner, refine_frames
-    from recondreamer.generative.training import RefinerExample, finish_job, refiner_loss, run_training_loop
+    from recondreamer.generative.training import RefinerExample, refiner_loss
+    from recondreamer.training_loop import finish_job, run_training_loop
 
     torch.set_num_threads(args.threads)
     overrides = {"steps": args.steps, "learning_rate": args.learning_rate}

@@ -58,6 +58,7 @@ def test_train_eval_models_command_writes_models_and_gates(corpus, tmp_path):
 def test_training_resumes_from_its_checkpoint(corpus, tmp_path):
     from recondreamer.evaluation.models import FeatureNetConfig
     from recondreamer.evaluation.training import feature_loss
+    from recondreamer.training_loop import resume_path
 
     samples = load_corpus(corpus, frame_stride=6, holdout_scenes=1).train
     settings = TrainSettings(steps=4, batch_size=2, checkpoint_every=2, log_every=1)
@@ -72,11 +73,11 @@ def test_training_resumes_from_its_checkpoint(corpus, tmp_path):
     config = FeatureNetConfig(input_width=96, input_height=64, widths=(8, 8, 16, 16))
     torch.manual_seed(0)
     with pytest.raises(KeyboardInterrupt):
-        train_model("features", config.build(), failing_loss, samples, settings, tmp_path / "ckpt.pt", degrade=False)
-    assert (tmp_path / "ckpt.pt").is_file()
+        train_model("features", config.build(), failing_loss, samples, settings, tmp_path / "model.pt", degrade=False)
+    assert resume_path(tmp_path / "model.pt").is_file()
     calls.clear()
     resumed = config.build()
-    train_model("features", resumed, lambda m, b: (calls.append(1), feature_loss(m, b))[1], samples, settings, tmp_path / "ckpt.pt", degrade=False)
+    train_model("features", resumed, lambda m, b: (calls.append(1), feature_loss(m, b))[1], samples, settings, tmp_path / "model.pt", degrade=False)
     assert len(calls) == 2  # steps 3 and 4 only
     # The same run without interruption ends with the same weights (batches are seeded per step).
     torch.manual_seed(0)

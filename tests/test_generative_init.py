@@ -135,7 +135,7 @@ def test_train_restorer_refuses_a_block_count_below_one(tmp_path, capsys):
 def test_a_resume_file_resumes_only_the_same_job_configuration(tmp_path, monkeypatch, caplog):
     import recondreamer.generative.training as training
     from recondreamer.generative.checkpoint import save_checkpoint
-    from recondreamer.generative.training import resume_path
+    from recondreamer.training_loop import resume_path
 
     world = tiny_model("sd")
     # A job stopped after its first checkpoint (step 1): its resume file stays behind.
@@ -150,7 +150,7 @@ def test_a_resume_file_resumes_only_the_same_job_configuration(tmp_path, monkeyp
         extra = {key: value for key, value in state.items() if key not in ("format", "format_version", "kind", "arch", "config", "state")}
         save_checkpoint(state_file, "training_state", state["arch"], {**state["config"], "unet": unet_config}, state["state"], **extra)
 
-    with caplog.at_level("INFO", logger="recondreamer.generative.training"):
+    with caplog.at_level("INFO", logger="recondreamer"):
         _train(world, tmp_path / "r.pt", checkpoint_every=1)
     assert "resuming from" in caplog.text and "at step 1" in caplog.text
     assert not state_file.exists()

@@ -12,7 +12,7 @@ import torch
 from recondreamer.generative.autoencoder import Autoencoder
 from recondreamer.generative.config import AutoencoderConfig
 from recondreamer.device import use_fast_conv_layout
-from recondreamer.generative.training import run_training_loop
+from recondreamer.training_loop import run_training_loop
 from recondreamer.generative.unet import LatentUNet
 from test_generative_models import H, W, random_inputs, tiny_model, tiny_unet_config
 

@@ -8,7 +8,7 @@ import torch
 
 from recondreamer.cli import main
 from recondreamer.generative.checkpoint import load_checkpoint
-from recondreamer.generative.training import resume_path, run_training_loop
+from recondreamer.training_loop import resume_path, run_training_loop
 
 # Small tensors: one torch thread each (tests/conftest.py).
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -16,7 +16,6 @@ from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.generative.autoencoder import frames_to_tensor, tensor_to_frames
 from recondreamer.generative.checkpoint import load_checkpoint, save_checkpoint
 from recondreamer.configs import to_dict
-from recondreamer.errors import RecondreamerError
 from recondreamer.generative.config import RefinerConfig, RestoreConfig
 from recondreamer.generative.data import restored_pair_frames, structure_from_uint8
 from recondreamer.generative.inference import load_restorer, restore_clip

@@ -229,6 +229,9 @@ def read_study_csvs(csv_paths: Sequence[str | Path], placement_path: str | Path)
                 if missing:
                     raise RecondreamerError(f"{path}: missing CSV columns {sorted(missing)} (expected {','.join(CSV_FIELDS)})")
                 for line, row in enumerate(reader, start=2):
+                    if any(row.get(name) is None for name in CSV_FIELDS[:3]):
+                        given = sum(value is not None for value in row.values())
+                        raise RecondreamerError(f"{path}:{line}: row cut short ({given} of {len(reader.fieldnames)} fields; an interrupted download?)")
                     if row["clip_id"] not in clips:
                         raise RecondreamerError(f"{path}:{line}: clip {row['clip_id']!r} is not in {placement_path}")
                     if row["choice"] not in ("top", "bottom"):
@@ -236,6 +239,8 @@ def read_study_csvs(csv_paths: Sequence[str | Path], placement_path: str | Path)
                     answers[(row["participant"], row["clip_id"])] = row["choice"]
         except OSError as error:
             raise RecondreamerError(f"{path}: cannot read ({error.strerror})") from None
+        except (UnicodeDecodeError, csv.Error) as error:  # binary or garbled bytes: not the page's download
+            raise RecondreamerError(f"{path}: not a study CSV file ({error})") from None
     comparisons = []
     for (_, clip_id), choice in sorted(answers.items()):
         clip = clips[clip_id]

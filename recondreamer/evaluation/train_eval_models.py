@@ -1,16 +1,15 @@
 """``recondreamer train-eval-models``: the three evaluation networks and their gates.
 
 Output directory: ``vehicle_detector.pt``, ``lane_segmenter.pt``, ``fid_features.pt`` (model
-files, see ``inference``), ``metrics.json`` (gates, training settings, corpus split) and
-``checkpoints/`` (training state for resuming after a kill; removed when all three are done).
-A model file that already exists is kept (not retrained), so a killed run resumes where it
-stopped; ``--force`` retrains.
+files, see ``inference``) and ``metrics.json`` (gates, training settings, corpus split); while a
+model trains, its ``<model>.pt.resume.pt`` (``recondreamer.training_loop``), so that a killed run
+resumes where it stopped. A model file that already exists is kept (not retrained); ``--force``
+retrains.
 """
 
 from __future__ import annotations
 
 import logging
-import shutil
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -23,6 +22,7 @@ from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, Lan
 from recondreamer.evaluation.nta_iou import DEFAULT_MIN_LIDAR_POINTS, DETECTION_SCORE_THRESHOLD
 from recondreamer.evaluation.training import TrainSettings, detector_loss, feature_loss, lane_loss, train_model
 from recondreamer.io import write_json_atomic
+from recondreamer.training_loop import finish_job
 
 log = logging.getLogger(__name__)
 
@@ -55,8 +55,6 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
     """Train (or reuse) the three models on ``corpus``, score them on its held-out scenes, write ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    checkpoints = out / "checkpoints"
-    checkpoints.mkdir(exist_ok=True)
     split = load_corpus(corpus, config.frame_stride, config.holdout_scenes, config.min_lidar_points, config.max_scenes)
     log.info("corpus: %d training frames from %d scenes, %d held-out frames from %d scenes", len(split.train), len(split.train_scenes), len(split.heldout), len(split.heldout_scenes))
     # The networks run at the corpus size (rounded down to their stride multiples).
@@ -90,15 +88,15 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
             model = model_config.build()
             settings = TrainSettings(steps=steps, batch_size=config.batch_size, seed=config.seed)
             crop = (config.crop_width, config.crop_height) if config.crop_width and config.crop_height else None
-            training = train_model(kind, model, loss_fn, split.train, settings, checkpoints / f"{kind}.ckpt.pt", degrade, crop, config.device)
+            training = train_model(kind, model, loss_fn, split.train, settings, path, degrade, crop, config.device)
             inference.save_model(path, kind, model, {"run": training, **provenance})
+            finish_job(path)
         metrics["models"][kind] = {"path": str(path), "sha256": inference.file_sha256(path), "training": training}
         metrics["gates"][kind] = _gate(kind, model, split, heldout_images)
         log.info("%s gate: %s", kind, metrics["gates"][kind])
     metrics["all_gates_passed"] = all(g.get("passed", True) for g in metrics["gates"].values())
     metrics["config"] = {k: v for k, v in asdict(config).items() if k not in ("detector", "lanes", "features")}
     write_json_atomic(out / "metrics.json", metrics)
-    shutil.rmtree(checkpoints, ignore_errors=True)
     return metrics
 
 

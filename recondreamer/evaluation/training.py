@@ -1,8 +1,9 @@
 """Training the evaluation models on the synthetic corpus, with resumable checkpoints.
 
-One loop serves the three networks: AdamW, linear warm-up then cosine decay, mini-batches
-drawn by a per-step seeded generator (so a resumed run draws the same batches), progress with
-loss and ETA every ``log_every`` steps, and a checkpoint every ``checkpoint_every`` steps.
+The three networks train in the project's one resumable loop (``recondreamer.training_loop``):
+AdamW, linear warm-up times a cosine decay to 0, mini-batches drawn by a generator seeded by
+(seed, step) (so a resumed run draws the same batches), progress with loss and ETA every
+``log_every`` steps, and ``OUT.resume.pt`` every ``checkpoint_every`` steps.
 Augmentations: horizontal flip, brightness/contrast jitter, and (detector, lanes) mild blur
 and noise on some frames, so that the models tolerate the softness of good renders while
 heavily degraded renders still lose detections.
@@ -14,17 +15,17 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from recondreamer.errors import CheckpointError
+from recondreamer.configs import to_dict
 from recondreamer.evaluation.corpus import FrameSample
 from recondreamer.evaluation.models import VehicleDetector
-from recondreamer.io import atomic_path
+from recondreamer.training_loop import run_training_loop
 
 log = logging.getLogger(__name__)
 
@@ -179,9 +180,10 @@ def feature_loss(model: torch.nn.Module, batch: Batch) -> torch.Tensor:
 # ---------------------------------------------------------------------------- loop
 
 
-def _lr_factor(step: int, settings: TrainSettings) -> float:
-    warm = min(1.0, (step + 1) / max(settings.warmup_steps, 1))
-    return warm * 0.5 * (1.0 + math.cos(math.pi * step / max(settings.steps, 1)))
+def warm_cosine_to_zero(step: int, total: int, base: float, warmup: int) -> float:
+    """The evaluation models' rate: linear warm-up times a cosine over the whole run, down to 0."""
+    warm = min(1.0, (step + 1) / max(warmup, 1))
+    return base * warm * 0.5 * (1.0 + math.cos(math.pi * step / max(total, 1)))
 
 
 def train_model(
@@ -190,58 +192,28 @@ def train_model(
     loss_fn: Callable[[torch.nn.Module, Batch], torch.Tensor],
     samples: list[FrameSample],
     settings: TrainSettings,
-    checkpoint_path: Path,
+    out: Path,
     degrade: bool,
     crop: tuple[int, int] | None = None,
     device: str = "cpu",
 ) -> dict:
-    """Train ``model`` in place; resumes from ``checkpoint_path`` when it holds this run's state."""
+    """Train ``model`` in place for the model file ``out`` (resuming from ``OUT.resume.pt`` when it
+    holds this job's state); the batches of a step depend on (seed, step) only."""
     if not samples:
         raise ValueError(f"{name}: no training frames")
     model.to(device)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=settings.lr, weight_decay=settings.weight_decay)
-    scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: _lr_factor(step, settings))
-    start = 0
-    if checkpoint_path.is_file():
-        try:
-            state = torch.load(checkpoint_path, map_location=device, weights_only=True)
-        except Exception as error:
-            raise CheckpointError(f"{checkpoint_path}: unreadable training checkpoint ({error}); delete it to start over") from None
-        if state.get("name") == name and state.get("steps") == settings.steps:
-            model.load_state_dict(state["model"])
-            model.to(device)
-            optimizer.load_state_dict(state["optimizer"])
-            scheduler.load_state_dict(state["scheduler"])
-            start = int(state["step"])
-            log.info("%s: resuming from %s at step %d", name, checkpoint_path, start)
-    model.train()
-    began, recent = time.monotonic(), []
-    for step in range(start, settings.steps):
-        rng = np.random.default_rng([settings.seed, step])
+
+    def step_loss(rng: np.random.Generator, _generator: torch.Generator) -> torch.Tensor:
         picks = rng.choice(len(samples), size=min(settings.batch_size, len(samples)), replace=False)
-        batch = make_batch([samples[i] for i in picks], rng, degrade, crop, device)
-        loss = loss_fn(model, batch)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        scheduler.step()
-        recent.append(loss.item())
-        done = step + 1
-        if done % settings.log_every == 0 or done == settings.steps:
-            elapsed = time.monotonic() - began
-            eta = elapsed / (done - start) * (settings.steps - done)
-            log.info("%s: step %d/%d loss %.4f lr %.2e elapsed %.0fs ETA %.0fs", name, done, settings.steps, np.mean(recent), scheduler.get_last_lr()[0], elapsed, eta)
-            recent = []
-        if done % settings.checkpoint_every == 0 and done < settings.steps:
-            payload = {
-                "name": name,
-                "steps": settings.steps,
-                "step": done,
-                "model": model.state_dict(),
-                "optimizer": optimizer.state_dict(),
-                "scheduler": scheduler.state_dict(),
-            }
-            with atomic_path(checkpoint_path) as tmp:
-                torch.save(payload, tmp)
+        return loss_fn(model, make_batch([samples[i] for i in picks], rng, degrade, crop, device))
+
+    identity = {"kind": "evaluation_model", "arch": name, "settings": asdict(settings), "crop": crop, "degrade": degrade,
+                "frames": len(samples), "config": to_dict(model.config)}
+    began = time.monotonic()
+    run_training_loop(
+        name, model, step_loss, settings.steps, settings.lr, settings.warmup_steps, out, identity, settings.checkpoint_every,
+        settings.log_every, settings.seed, settings.weight_decay, lr_schedule=warm_cosine_to_zero, clip_grad_norm=None,
+        per_step_batches=True,
+    )
     model.cpu().eval()
     return {"crop": list(crop) if crop else None, "steps": settings.steps, "batch_size": settings.batch_size, "lr": settings.lr, "seconds": round(time.monotonic() - began, 1)}

@@ -142,7 +142,7 @@ class TrainConfig:
     pixel_loss_weight: float = 0.0
     # Decay of an exponential moving average of the weights, which the checkpoint then holds;
     # 0 = the last weights. Batches of two clips make single steps noisy, and averaging them is
-    # standard in diffusion training (training.run_training_loop).
+    # standard in diffusion training (recondreamer.training_loop).
     ema_decay: float = 0.0
     checkpoint_every: int = 200  # steps between resume checkpoints
     log_every: int = 50  # steps between progress lines

@@ -7,7 +7,6 @@ the scene extent (metres), as in 3DGS.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 from recondreamer.errors import RecondreamerError
