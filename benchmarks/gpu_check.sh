@@ -30,8 +30,8 @@
 #   the preset's) with small step counts. Capacity: CAP_TRAIN (8 scenes), CAP_WIDE ("64 128 256"),
 #   CAP_WM_STEPS / CAP_RESTORER_STEPS of the CPU recipe (1000 1000), CAP_LONG_WM_STEPS /
 #   CAP_LONG_RESTORER_STEPS of the longer runs (2000 1500), CAP_TIMESTEP_POWER of the restorers
-#   (3; train-restorer's default is 50, docs/restorer.md), CAP_CROP of the restorers'
-#   training latents ("24 32", the default crop; "0 0" = whole latents, better on CPU: docs/restorer.md),
+#   (3; train-restorer's default is 50, docs/generative.md), CAP_CROP of the restorers'
+#   training latents ("24 32", the default crop; "0 0" = whole latents, better on CPU: docs/generative.md),
 #   CAP_PIXEL_LOSS_WEIGHT (0; see train-restorer --pixel-loss-weight), CAP_JOBS (parallel CPU jobs, nproc),
 #   CAP_TRAJECTORIES of the pairs ("original shift@3 shift@6 lane_change"), CAP_CORPUS (the first 20 corpus
 #   scenes pretrain the world models).

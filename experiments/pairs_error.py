@@ -14,7 +14,7 @@ clip's PSNR against its ground truth and:
   exactly the ground truth's, ``E(gt)``, under residual decoding (``input + D(E(gt)) - D(E(input))``,
   what ``restore_clip`` returns): the ceiling of any latent restorer with that autoencoder.
 
-docs/restorer.md cites it for the latent oracle's gain (Design decisions, the autoencoder) and for
+docs/generative.md cites it for the latent oracle's gain (Design decisions, the autoencoder) and for
 where a render's error sits, the reason for the pixel refiner (Design decisions, Refiner). Example::
 
     python experiments/pairs_error.py --pairs results/restorer-dev/pairs-heldout [--autoencoder results/restorer-dev/ae8_5000.pt]

@@ -5,7 +5,7 @@ if there were no diffusion restorer before it (its "restored" input is the degra
 itself), with ``train-refiner``'s loss, crops and optimiser, then scores it on held-out pairs the
 way ``benchmarks/restorer.py`` scores restorers: mean per-clip PSNR gain over the degraded input
 (split by orig / novel clips), flicker, CPU time. What a DriveRestorer gains beyond this number is
-what its world-model prior and diffusion are worth on these pairs; docs/restorer.md cites it for
+what its world-model prior and diffusion are worth on these pairs; docs/generative.md cites it for
 that comparison (Design decisions, Refiner). Example::
 
     python experiments/pixel_baseline.py --pairs results/restorer-dev/pairs-train/corpus-00*.npz \\

@@ -9,7 +9,7 @@ equals running the refiner with that ``max_correction`` (a clamp of the correcti
 rounding to whole levels); the script checks this on the first clip with a bound of 12 and prints
 the largest difference in grey levels.
 
-docs/restorer.md cites it for the default bound of 12 grey levels (Design decisions, Refiner), measured on 4
+docs/generative.md cites it for the default bound of 12 grey levels (Design decisions, Refiner), measured on 4
 scenes neither network trained on::
 
     python experiments/refiner_bound.py --restorer results/restorer-dev/s23/stage4_ref.pt \\

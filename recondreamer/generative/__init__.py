@@ -1,5 +1,5 @@
 """The generative stack: latent autoencoder, world models (sd / svd / dd2), DriveRestorer and the
-DriveDreamer4D generator (see ``docs/restorer.md``).
+DriveDreamer4D generator (see ``docs/generative.md``).
 
 Modules: ``config`` (dataclass configs), ``autoencoder``, ``unet``, ``diffusion`` (schedule, DDIM),
 ``masks`` (dd2_mask training masks), ``data`` (corpus and pairs as latents), ``pairs``

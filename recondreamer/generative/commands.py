@@ -100,7 +100,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_train_restorer)
 
     p = subparsers.add_parser(
-        "train-refiner", help="train DriveRestorer's pixel refiner on the restorer's outputs for restoration pairs (docs/restorer.md)"
+        "train-refiner", help="train DriveRestorer's pixel refiner on the restorer's outputs for restoration pairs (docs/generative.md)"
     )
     p.add_argument("--restorer", required=True, help="restorer checkpoint (train-restorer output) whose outputs the refiner corrects")
     p.add_argument("--pairs", required=True, nargs="+", help="restoration-pairs directories or .npz files (e.g. the restorer's own)")

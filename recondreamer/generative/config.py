@@ -174,13 +174,13 @@ class RefinerConfig:
     # surface filling much of a frame, unlike its crops, an unbounded one brightened a truck's side
     # to up to 159 levels from the truth and cost 5 dB. Clipping that refiner's correction at 12 levels
     # scored best of bounds 2-64 and none on 4 scenes neither it nor its restorer trained on
-    # (experiments/refiner_bound.py, docs/restorer.md).
+    # (experiments/refiner_bound.py, docs/generative.md).
     max_correction: float = 12.0
     steps: int = 3000  # training steps
     batch_size: int = 8  # crops per step
     crop: int = 64  # crop side in pixels
     # 1e-3 trained two 3000-step refiners but sent a 6000-step one to a loss spike (step 1200) after
-    # which it returned its input unchanged; 5e-4 trained that job well (docs/restorer.md).
+    # which it returned its input unchanged; 5e-4 trained that job well (docs/generative.md).
     learning_rate: float = 5e-4  # AdamW learning rate
     warmup_steps: int = 100  # steps of linear learning-rate warm-up
     ema_decay: float = 0.0  # decay of a moving average of the weights saved instead of the last ones (0: off)
@@ -219,7 +219,7 @@ class RestoreConfig:
         check_fraction(self, "strength", closed_high=True, open_low=True)
 
 
-# What `train-restorer` uses unless told otherwise (docs/restorer.md): one DDIM step with residual
+# What `train-restorer` uses unless told otherwise (docs/generative.md): one DDIM step with residual
 # decoding when restoring (4 steps scored ~1 dB lower on held-out pairs) and four noise draws
 # averaged per window (+0.06-0.07 dB on held-out pairs over one draw, and less flicker, for
 # 1.5-1.6x the restore time: the autoencoder, run once, costs more than the UNet passes); training
