@@ -50,7 +50,8 @@ def main() -> int:
 
     import torch
 
-    from recondreamer.evaluation.train_eval_models import EvalModelsConfig, train_eval_models
+    from recondreamer.evaluation.config import EvalModelsConfig
+    from recondreamer.evaluation.train_eval_models import train_eval_models
     if args.threads:
         torch.set_num_threads(args.threads)
     corpus = args.corpus or build_corpus(args.out, args.scenes, args.seed_base)

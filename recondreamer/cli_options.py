@@ -19,6 +19,7 @@ import inspect
 import io
 import textwrap
 import tokenize
+import types
 import typing
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -89,6 +90,8 @@ def add_config_options(
     group = parser.add_argument_group(title or f"{cls.__name__} options")
     for name in names:
         hint = _field_type(cls, name)
+        if typing.get_origin(hint) in (typing.Union, types.UnionType):  # X | None: the option takes an X
+            hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
         origin = typing.get_origin(hint)
         default = (shown.get(name) or shown["*"]) if isinstance(shown, Mapping) else _show(getattr(shown, name))
         help_text = f"{comments.get(name) or name.replace('_', ' ')} (default: {default})"

@@ -89,7 +89,7 @@ class TestApplyOptions:
 
 
 class TestGeneratedCommands:
-    @pytest.mark.parametrize("command", ["train-autoencoder", "pretrain-world-model", "train-restorer", "train-refiner"])
+    @pytest.mark.parametrize("command", ["train-autoencoder", "pretrain-world-model", "train-restorer", "train-refiner", "train-eval-models"])
     def test_every_generated_option_shows_a_description_and_its_default(self, command):
         subparsers = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
         parser = subparsers.choices[command]

@@ -11,7 +11,7 @@ import yaml
 
 from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, from_dict, layer, read_yaml_mapping, to_dict, workflow_config
 from recondreamer.errors import RecondreamerError
-from recondreamer.evaluation.models import MODEL_CONFIGS
+from recondreamer.evaluation.config import MODEL_CONFIGS
 from recondreamer.recon.config import ReconConfig, make_config
 from recondreamer.generative import config as generative
 

@@ -18,7 +18,7 @@ from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.evaluation import inference
 from recondreamer.evaluation.evaluate import FID_FEATURES_NOTE, fid_feature_network, load_eval_models, pooled_fid, write_features
 from recondreamer.evaluation.inception import FIDInceptionV3, InceptionA, InceptionC, InceptionE
-from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
+from recondreamer.evaluation.config import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
 
 # Branches (name, c_out, kernel (h, w)) of torchvision's Inception3 blocks, as pytorch-fid's
 # weights file lays them out; "in" is the block's input channel count.

@@ -10,7 +10,7 @@ from PIL import Image
 from recondreamer.cli import main
 from recondreamer.errors import CheckpointError
 from recondreamer.evaluation import frechet, gates, inference, lanes, nta_iou
-from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
+from recondreamer.evaluation.config import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
 from recondreamer.frames_io import FrameError, read_frame_folder
 from recondreamer.evaluation.training import detector_targets
 from recondreamer.scene.structure import project_boxes_2d

@@ -15,7 +15,7 @@ import yaml
 from recondreamer.cli import main
 from recondreamer.configs import to_dict
 from recondreamer.evaluation import inference
-from recondreamer.evaluation.models import (
+from recondreamer.evaluation.config import (
     DetectorConfig,
     FeatureNetConfig,
     LaneSegmenterConfig,

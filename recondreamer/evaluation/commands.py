@@ -7,9 +7,14 @@ import argparse
 import logging
 from pathlib import Path
 
+from recondreamer.cli_options import add_config_options, apply_options
+from recondreamer.evaluation.config import DetectorConfig, EvalModelsConfig
+
 log = logging.getLogger(__name__)
 
 GATE_FAILED_EXIT = 3
+EVAL_MODELS_OPTIONS = ("detector_steps", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes", "max_scenes",
+                       "min_lidar_points", "crop", "device", "seed")
 
 
 def register(subparsers) -> None:
@@ -22,20 +27,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("--corpus", required=True, type=Path, help="directory of corpus scene directories")
     p.add_argument("--out", required=True, type=Path, help="output directory for the model files and metrics.json")
-    p.add_argument("--detector-steps", type=int, default=1500, help="training steps of the vehicle detector (default 1500)")
-    p.add_argument("--detector-upsample", type=int, default=1, help="enlarge frames this many times inside the detector, for the few-pixel vehicles of small frames (default 1)")
-    p.add_argument("--lane-steps", type=int, default=2000, help="training steps of the lane segmenter (default 2000)")
-    p.add_argument("--feature-steps", type=int, default=200, help="training steps of the FID feature network (default 200)")
-    p.add_argument("--batch-size", type=int, default=12, help="frames per training step (default 12)")
-    p.add_argument("--frame-stride", type=int, default=2, help="use every N-th frame of each trajectory (default 2)")
-    p.add_argument("--holdout-scenes", type=int, default=4, help="last N corpus scenes held out for the gates (default 4)")
-    p.add_argument("--max-scenes", type=int, default=None, help="use only the first N corpus scenes (default all)")
-    p.add_argument("--min-lidar-points", type=int, default=10, help="NTA-IoU ground-truth LiDAR-point filter (default 10)")
-    p.add_argument("--crop", type=int, nargs=2, default=[160, 112], metavar=("W", "H"), help="train on random W x H crops, multiples of 16 (default 160 112; 0 0 = full frames)")
-    p.add_argument("--device", default="cpu", help="torch device for training, e.g. cpu or cuda (default cpu)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of initialisation and batches (default 0)")
     p.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--force", action="store_true", help="retrain models whose files already exist in OUT")
+    add_config_options(p, EvalModelsConfig, EVAL_MODELS_OPTIONS, title="training (EvalModelsConfig)")
+    add_config_options(p, DetectorConfig, ("upsample",), prefix="detector-", title="vehicle detector (DetectorConfig)")
     p.add_argument("--require-gates", action="store_true", help=f"exit with code {GATE_FAILED_EXIT} when a gate is not met")
     p.set_defaults(func=_train_eval_models)
 
@@ -112,33 +107,12 @@ def register(subparsers) -> None:
 def _train_eval_models(args: argparse.Namespace) -> int:
     import torch
 
-    from recondreamer.errors import RecondreamerError
-    from recondreamer.evaluation.models import DetectorConfig
-    from recondreamer.evaluation.train_eval_models import EvalModelsConfig, train_eval_models
+    from recondreamer.evaluation.train_eval_models import train_eval_models
 
-    for name in ("detector_steps", "detector_upsample", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes"):
-        if getattr(args, name) < 1:
-            raise RecondreamerError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
-    if any(c < 0 or c % 16 for c in args.crop):
-        raise RecondreamerError(f"--crop must be two multiples of 16 (or 0 0), got {args.crop[0]} {args.crop[1]}")
+    detector = apply_options(args, DetectorConfig(), ("upsample",), prefix="detector-")
+    config = apply_options(args, EvalModelsConfig(force=args.force, detector=detector), EVAL_MODELS_OPTIONS)
     if args.threads:
         torch.set_num_threads(args.threads)
-    config = EvalModelsConfig(
-        detector_steps=args.detector_steps,
-        lane_steps=args.lane_steps,
-        feature_steps=args.feature_steps,
-        batch_size=args.batch_size,
-        frame_stride=args.frame_stride,
-        holdout_scenes=args.holdout_scenes,
-        max_scenes=args.max_scenes,
-        min_lidar_points=args.min_lidar_points,
-        crop_width=args.crop[0],
-        crop_height=args.crop[1],
-        detector=DetectorConfig(upsample=args.detector_upsample),
-        seed=args.seed,
-        force=args.force,
-        device=args.device,
-    )
     metrics = train_eval_models(args.corpus, args.out, config)
     for kind, gate in metrics["gates"].items():
         log.info("%s: %s", kind, ", ".join(f"{k}={v}" for k, v in gate.items()))

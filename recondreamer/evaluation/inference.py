@@ -22,7 +22,7 @@ import torch.nn.functional as F
 from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.evaluation.inception import INCEPTION_STATE_DICT_KEY, FIDInceptionV3
 from recondreamer.configs import from_dict, to_dict
-from recondreamer.evaluation.models import MODEL_CONFIGS
+from recondreamer.evaluation.config import MODEL_CONFIGS
 from recondreamer.io import atomic_path
 from recondreamer.provenance import command_line
 

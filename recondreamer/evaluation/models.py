@@ -16,11 +16,11 @@ Every network takes uint8-range RGB (B,3,H,W) float tensors at its configured in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from recondreamer.evaluation.config import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
 
 
 def _normalise(images: torch.Tensor) -> torch.Tensor:  # (B,3,H,W) in [0,255] -> about [-1,1]
@@ -35,21 +35,6 @@ class ConvBNAct(nn.Sequential):
             nn.BatchNorm2d(c_out),
             nn.ReLU(inplace=True),
         )
-
-
-@dataclass
-class DetectorConfig:
-    input_width: int = 240  # multiples of 16
-    input_height: int = 160
-    widths: tuple[int, int, int, int] = (16, 32, 64, 96)  # channels at strides 2, 4, 8, 16
-    neck_width: int = 32
-    max_detections: int = 64
-    # Frames are enlarged this many times (bilinear) before the network, so its stride-4 heat map
-    # resolves the few-pixel vehicles of compact frames; boxes stay in input pixels.
-    upsample: int = 1
-
-    def build(self) -> VehicleDetector:
-        return VehicleDetector(self)
 
 
 class VehicleDetector(nn.Module):
@@ -159,17 +144,6 @@ class UpBlock(nn.Sequential):
         super().__init__(nn.ConvTranspose2d(c_in, c_out, 2, stride=2, bias=False), nn.BatchNorm2d(c_out), nn.PReLU(c_out))
 
 
-@dataclass
-class LaneSegmenterConfig:
-    input_width: int = 240  # multiples of 8
-    input_height: int = 160
-    widths: tuple[int, int, int] = (16, 48, 96)  # channels at strides 2, 4, 8
-    blocks: tuple[int, int] = (2, 3)  # ESP blocks at strides 4 and 8
-
-    def build(self) -> LaneSegmenter:
-        return LaneSegmenter(self)
-
-
 class LaneSegmenter(nn.Module):
     """TwinLiteNet-style twin-head segmenter: lane (2 classes) and drivable area (2 classes)."""
 
@@ -205,21 +179,6 @@ class LaneSegmenter(nn.Module):
         }
 
 
-@dataclass
-class FeatureNetConfig:
-    input_width: int = 240  # multiples of 16
-    input_height: int = 160
-    widths: tuple[int, int, int, int] = (24, 48, 96, 128)  # channels at strides 2, 4, 8, 16
-    num_classes: int = 9  # len(SEMANTIC_CLASSES)
-
-    @property
-    def feature_dim(self) -> int:
-        return sum(self.widths[1:])  # pooled stages at strides 4, 8 and 16
-
-    def build(self) -> FeatureNet:
-        return FeatureNet(self)
-
-
 class FeatureNet(nn.Module):
     """Encoder trained by semantic segmentation; ``features`` gives the FID embedding."""
 
@@ -251,10 +210,3 @@ class FeatureNet(nn.Module):
         # stages FID and KID rank the true-view upper bound above the baseline on every trajectory
         # of the default run, the last stage alone on shift@6 only (docs/evaluation.md).
         return torch.cat([x.mean(dim=(2, 3)) for x in self.encode(images)], dim=1)
-
-
-MODEL_CONFIGS = {
-    "vehicle_detector": DetectorConfig,
-    "lane_segmenter": LaneSegmenterConfig,
-    "fid_features": FeatureNetConfig,
-}

@@ -10,7 +10,7 @@ retrains.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -18,33 +18,13 @@ import torch
 
 from recondreamer.evaluation import gates, inference
 from recondreamer.evaluation.corpus import load_corpus
-from recondreamer.evaluation.models import DetectorConfig, FeatureNetConfig, LaneSegmenterConfig
-from recondreamer.evaluation.nta_iou import DEFAULT_MIN_LIDAR_POINTS, DETECTION_SCORE_THRESHOLD
+from recondreamer.evaluation.config import EvalModelsConfig
+from recondreamer.evaluation.nta_iou import DETECTION_SCORE_THRESHOLD
 from recondreamer.evaluation.training import TrainSettings, detector_loss, feature_loss, lane_loss, train_model
 from recondreamer.io import write_json_atomic
 from recondreamer.training_loop import finish_job
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class EvalModelsConfig:
-    detector_steps: int = 1500
-    lane_steps: int = 2000
-    feature_steps: int = 200
-    batch_size: int = 12
-    frame_stride: int = 2
-    holdout_scenes: int = 4
-    max_scenes: int | None = None
-    min_lidar_points: int = DEFAULT_MIN_LIDAR_POINTS
-    crop_width: int = 160  # training crops (multiples of 16); 0 trains on full frames
-    crop_height: int = 112
-    seed: int = 0
-    force: bool = False
-    device: str = "cpu"
-    detector: DetectorConfig = field(default_factory=DetectorConfig)
-    lanes: LaneSegmenterConfig = field(default_factory=LaneSegmenterConfig)
-    features: FeatureNetConfig = field(default_factory=FeatureNetConfig)
 
 
 def _round_down(value: int, multiple: int) -> int:
@@ -87,7 +67,7 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
         else:
             model = model_config.build()
             settings = TrainSettings(steps=steps, batch_size=config.batch_size, seed=config.seed)
-            crop = (config.crop_width, config.crop_height) if config.crop_width and config.crop_height else None
+            crop = config.crop if all(config.crop) else None
             training = train_model(kind, model, loss_fn, split.train, settings, path, degrade, crop, config.device)
             inference.save_model(path, kind, model, {"run": training, **provenance})
             finish_job(path)
