@@ -4,6 +4,7 @@ files), the `weights verify` command, and where runs find their models."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -137,6 +138,17 @@ class TestPublish:
         assert manifest["code_version"]
         report = (weight_set / "GATES.md").read_text()
         assert "| dd2_mask | shift@3 | 1 | 20.00 | 22.50 | +2.50 |" in report and "- residual target" in report
+
+    def test_republishing_rewrites_only_the_files_that_changed(self, weight_set, trained_files, tmp_path):
+        for name in trained_files:
+            os.utime(weight_set / name, ns=(1, 1))  # as if published long ago
+        changed = tmp_path / "detector.pt"
+        torch.save({**torch.load(trained_files["vehicle_detector.pt"], weights_only=False), "training": {"steps": 99}}, changed)
+        manifest = publish_weight_set({**trained_files, "vehicle_detector.pt": changed}, GATES, "quick", weight_set)
+        assert (weight_set / "vehicle_detector.pt").stat().st_mtime_ns != 1
+        assert all((weight_set / name).stat().st_mtime_ns == 1 for name in trained_files if name != "vehicle_detector.pt")
+        assert manifest["files"]["vehicle_detector.pt"]["sha256"] == sha256_file(changed)
+        verify_weight_set(weight_set)  # raises on any mismatch
 
     def test_unknown_name_or_missing_source_fails_before_writing(self, tmp_path, trained_files):
         with pytest.raises(WeightsError, match="restorer_xyz.pt: not a file of a weight set"):

@@ -194,7 +194,10 @@ def manifest_entry(path: Path, spec: WeightFile, gates: dict | None) -> dict:
 
 def publish_weight_set(files: dict[str, Path], gates: dict, corpus_preset: str, out: str | os.PathLike) -> dict:
     """Copy ``files`` (weight-set name -> trained file) into ``out`` and write GATES.md and the
-    manifest; the manifest last (and any old one removed first), so a set without one is incomplete."""
+    manifest; the manifest last (and any old one removed first), so a set without one is incomplete.
+    A file already in ``out`` with the same content is left as it is, its modification time too,
+    so that republishing one retrained model does not make Snakemake rerun every run of the others."""
+    import filecmp
     import shutil
 
     from recondreamer.foundation.gates import file_gates, gate_report
@@ -212,8 +215,9 @@ def publish_weight_set(files: dict[str, Path], gates: dict, corpus_preset: str, 
     entries = {}
     for name, source in files.items():
         spec = BY_NAME[name]
-        with atomic_path(out / name) as tmp:
-            shutil.copyfile(source, tmp)
+        if not ((out / name).is_file() and filecmp.cmp(source, out / name, shallow=False)):
+            with atomic_path(out / name) as tmp:
+                shutil.copyfile(source, tmp)
         entries[name] = manifest_entry(out / name, spec, file_gates(spec, gates))
     manifest = {
         "format": MANIFEST_FORMAT,
