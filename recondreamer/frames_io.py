@@ -79,7 +79,10 @@ def read_clip(path: str | os.PathLike, trajectory: str | None = None) -> np.ndar
     named after ``trajectory``, that sub-folder."""
     path = Path(path)
     if path.is_file() and path.suffix == ".npy":
-        frames = np.load(path)
+        try:
+            frames = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as error:  # cut short, or not an .npy file at all
+            raise RecondreamerError(f"{path}: not a readable .npy clip ({error})") from None
         if frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
             raise RecondreamerError(f"{path}: expected a (T,H,W,3) uint8 array, got {frames.dtype} {frames.shape}")
         return frames

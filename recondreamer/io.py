@@ -64,7 +64,7 @@ def _disk_full_error(path: Path, error: BaseException, replacing: bool) -> Outpu
     if not full and not (isinstance(chain[0], (OSError, RuntimeError)) and free is not None and free < _NEARLY_FULL_BYTES):
         return None
     kept = "the earlier one is unchanged" if replacing else "nothing was written"
-    space = "" if free is None else f", {free} bytes free"
+    space = f", {free} bytes free" if free is not None and free < _NEARLY_FULL_BYTES else ""
     return OutputWriteError(f"{path}: could not be written: no space left on its file system{space} ({kept})")
 
 
@@ -194,9 +194,15 @@ def atomic_directory(path: str | os.PathLike, kind: str) -> Iterator[Path]:
         (tmp / OUTPUT_MARKER).write_text(kind + "\n")
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            os.replace(path, old / path.name)
-            os.replace(tmp, path)
-            shutil.rmtree(old)
+            try:
+                os.replace(path, old / path.name)
+                try:
+                    os.replace(tmp, path)
+                except BaseException:
+                    os.replace(old / path.name, path)  # the earlier output back in place
+                    raise
+            finally:
+                shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, path)
     except (OSError, RuntimeError) as error:

@@ -86,3 +86,34 @@ def test_study_ingest_rejects_bad_csv(tmp_path):
     unknown.write_text("participant,clip_id,choice,time\np,clip999,top,\n")
     with pytest.raises(RecondreamerError, match="clip999"):
         read_study_csvs([unknown], placement)
+
+
+class TestDamagedStudyCsv:
+    """A file that is not (all of) the study page's download is one error naming it and the line."""
+
+    @pytest.fixture
+    def placement(self, tmp_path):
+        path = tmp_path / "placement.json"
+        path.write_text(json.dumps({"seed": 0, "clips": [{"clip_id": "clip000", "scene": "s", "trajectory": "shift@3", "top": "a", "bottom": "b"}]}))
+        return path
+
+    def test_binary_bytes(self, tmp_path, placement):
+        bad = tmp_path / "bad.csv"
+        bad.write_bytes(bytes(range(128, 256)) * 20)  # not UTF-8
+        with pytest.raises(RecondreamerError, match=r"bad.csv: not a study CSV file"):
+            read_study_csvs([bad], placement)
+
+    def test_a_row_cut_short(self, tmp_path, placement):
+        cut = tmp_path / "cut.csv"
+        cut.write_text("participant,clip_id,choice,time\np1,clip000,top,3.1\np2,clip000")  # the download stopped mid-row
+        with pytest.raises(RecondreamerError, match=r"cut.csv:3: row cut short \(2 of 4 fields"):
+            read_study_csvs([cut], placement)
+
+    def test_study_ingest_prints_one_line_and_writes_nothing(self, tmp_path, placement, capsys):
+        bad = tmp_path / "bad.csv"
+        bad.write_bytes(bytes(range(128, 256)) * 20)
+        out = tmp_path / "win_rates.json"
+        assert main(["study-ingest", "--placement", str(placement), "--out", str(out), str(bad)]) == 1
+        err = capsys.readouterr().err
+        assert err.count("error:") == 1 and "bad.csv: not a study CSV file" in err and "Traceback" not in err
+        assert not out.exists()

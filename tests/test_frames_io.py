@@ -63,3 +63,13 @@ class TestErrors:
         np.save(tmp_path / "bad.npy", np.zeros((2, 4, 4), np.float32))
         with pytest.raises(RecondreamerError, match=r"bad.npy: expected a \(T,H,W,3\) uint8 array"):
             read_clip(tmp_path / "bad.npy")
+
+    def test_damaged_npy(self, tmp_path):
+        (tmp_path / "noise.npy").write_bytes(np.random.default_rng(0).bytes(3000))
+        with pytest.raises(RecondreamerError, match=r"noise.npy: not a readable .npy clip"):
+            read_clip(tmp_path / "noise.npy")
+        np.save(tmp_path / "whole.npy", clip())
+        data = (tmp_path / "whole.npy").read_bytes()
+        (tmp_path / "cut.npy").write_bytes(data[: len(data) // 2])
+        with pytest.raises(RecondreamerError, match=r"cut.npy: not a readable .npy clip"):
+            read_clip(tmp_path / "cut.npy")

@@ -60,3 +60,13 @@ def test_novel_trajectory_without_true_views_is_refused(run, tmp_path):
     run_dir, _ = run
     with pytest.raises(RecondreamerError, match="no true novel views"):
         make_pairs_for_run(run_dir, tmp_path, num_stages=2, trajectories=("shift@9.5",))
+
+
+class TestDamagedPairsFile:
+    def test_a_cut_short_npz_is_named(self, tmp_path):
+        whole = tmp_path / "whole.npz"
+        np.savez_compressed(whole, gt=np.zeros((3, 8, 8, 3), np.uint8), degraded=np.ones((1, 3, 8, 8, 3), np.uint8))
+        data = whole.read_bytes()
+        (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])  # a copy or download that stopped
+        with pytest.raises(RecondreamerError, match=r"cut.npz: not a readable restoration-pairs file"):
+            load_pairs_file(tmp_path / "cut.npz")

@@ -4,7 +4,9 @@ place, and a run resumes only on the scene it started on."""
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -12,7 +14,7 @@ import sys
 import pytest
 
 from recondreamer.cli import main
-from recondreamer.io import OUTPUT_MARKER, OutputPathError, atomic_directory, atomic_path, output_kind, write_text_atomic
+from recondreamer.io import OUTPUT_MARKER, OutputPathError, OutputWriteError, atomic_directory, atomic_path, output_kind, write_text_atomic
 
 TINY_SCENE = ["--preset", "quick", "--frames", "3", "--width", "64", "--height", "48", "--no-novel"]
 
@@ -97,6 +99,73 @@ class TestKilledWrites:
             write_text_atomic(target, "{}")  # a second writer of the same file meanwhile
             assert inflight.read_text() == "partial"
         assert target.read_text() == "partial"  # the first writer's rename came last
+
+
+def _no_space(path) -> OSError:
+    return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+
+class TestFullDisk:
+    """A write that runs out of space is one error naming the output; the earlier output stays
+    and no temporary is left (benchmarks/faults.py fills a real tmpfs)."""
+
+    def test_a_file_keeps_its_earlier_version(self, tmp_path):
+        out = tmp_path / "model.pt"
+        out.write_bytes(b"earlier")
+        match = r"model.pt: could not be written: no space left on its file system.*earlier one is unchanged"
+        with pytest.raises(OutputWriteError, match=match), atomic_path(out) as tmp:
+            tmp.write_bytes(b"half")
+            raise _no_space(tmp)
+        assert out.read_bytes() == b"earlier" and sorted(tmp_path.iterdir()) == [out]
+
+    def test_a_new_directory_leaves_nothing(self, tmp_path):
+        with pytest.raises(OutputWriteError, match=r"scene: could not be written.*nothing was written"), atomic_directory(tmp_path / "scene", "scene") as tmp:
+            (tmp / "a.png").write_bytes(b"1")
+            raise _no_space(tmp / "b.png")
+        assert list(tmp_path.iterdir()) == []
+
+    def test_a_failed_swap_puts_the_earlier_directory_back(self, tmp_path, monkeypatch):
+        out = tmp_path / "scene"
+        with atomic_directory(out, "scene") as tmp:
+            (tmp / "old.png").write_bytes(b"earlier")
+        real_replace = os.replace
+
+        def replace(source, destination):  # the new directory cannot be renamed into place
+            if str(source).endswith(".tmp") and os.fspath(destination) == os.fspath(out):
+                raise _no_space(destination)
+            return real_replace(source, destination)
+
+        monkeypatch.setattr(os, "replace", replace)
+        with pytest.raises(OutputWriteError, match="earlier one is unchanged"), atomic_directory(out, "scene") as tmp:
+            (tmp / "new.png").write_bytes(b"new")
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]  # no .old or .tmp sibling
+        assert (out / "old.png").read_bytes() == b"earlier"
+
+    def test_a_writer_that_hides_the_os_error_on_a_full_disk(self, tmp_path, monkeypatch):
+        # torch.save to a path reports a full disk as RuntimeError("... unexpected pos ..."), no errno.
+        monkeypatch.setattr(shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(1 << 30, 1 << 30, 0))
+        with pytest.raises(OutputWriteError, match="0 bytes free"), atomic_path(tmp_path / "checkpoint.pt"):
+            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 704 vs 598")
+        assert list(tmp_path.iterdir()) == []
+
+    def test_other_errors_are_not_taken_for_a_full_disk(self, tmp_path):
+        with pytest.raises(RuntimeError, match="a bug"), atomic_path(tmp_path / "checkpoint.pt"):
+            raise RuntimeError("a bug")
+        with pytest.raises(FileNotFoundError), atomic_directory(tmp_path / "scene", "scene"):
+            (tmp_path / "missing-input.json").read_text()
+        assert list(tmp_path.iterdir()) == []
+
+    def test_synth_prints_one_line(self, tmp_path, capsys, monkeypatch):
+        import numpy as np
+
+        def save(file, *args, **kwargs):
+            raise _no_space(file)
+
+        monkeypatch.setattr(np, "save", save)
+        assert synth(tmp_path / "scene") == 1
+        err = capsys.readouterr().err
+        assert f"recondreamer synth: error: {tmp_path / 'scene'}: could not be written: no space left" in err
+        assert "Traceback" not in err and list(tmp_path.iterdir()) == []
 
 
 class TestOutPaths:

@@ -146,3 +146,21 @@ def test_scene_trajectory_uses_its_ego_poses(tmp_path):
     np.testing.assert_allclose(lane_change, expected, atol=1e-12)
     with pytest.raises(ValueError, match="unknown trajectory"):
         scene.trajectory("shift@x")
+
+
+class TestDamagedPoseFiles:
+    """A pose file that is not a whole .npy array is named with what is wrong with it."""
+
+    def test_random_bytes_are_not_an_npy_file(self, tmp_path):
+        ego = curved_ego(4)
+        (tmp_path / "noise.npy").write_bytes(np.random.default_rng(0).bytes(3000))
+        with pytest.raises(ValueError, match=r"noise.npy: not a .npy file"):
+            trajectory_cam_to_world(ego @ CAM_TO_EGO, ego, f"file:{tmp_path / 'noise.npy'}")
+
+    def test_a_file_cut_short(self, tmp_path):
+        ego = curved_ego(4)
+        np.save(tmp_path / "poses.npy", ego @ CAM_TO_EGO)
+        data = (tmp_path / "poses.npy").read_bytes()
+        (tmp_path / "cut.npy").write_bytes(data[: len(data) - 40])
+        with pytest.raises(ValueError, match=r"cut.npy: cannot be read \(Failed to read all data"):
+            trajectory_cam_to_world(ego @ CAM_TO_EGO, ego, f"file:{tmp_path / 'cut.npy'}")

@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -154,7 +155,7 @@ def load_pairs_file(path: Path) -> dict:
     try:
         with np.load(path, allow_pickle=False) as data:
             content = {key: data[key] for key in data.files}
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:  # a cut-short .npz is a bad zip archive
         raise RecondreamerError(f"{path}: not a readable restoration-pairs file ({error})") from error
     missing = [key for key in PAIRS_KEYS if key not in content]
     if missing:

@@ -78,7 +78,13 @@ def load_pose_file(path: str | Path, num_frames: int) -> np.ndarray:  # (T,4,4)
         raise ValueError(f"trajectory file {path} does not exist")
     try:
         if path.suffix == ".npy":
-            poses = np.load(path, allow_pickle=False)
+            with open(path, "rb") as handle:
+                if handle.read(6) != b"\x93NUMPY":  # else numpy takes the bytes for a pickle and refuses it as one
+                    raise ValueError(f"trajectory file {path}: not a .npy file (it does not start with the .npy magic bytes)")
+            try:
+                poses = np.load(path, allow_pickle=False)
+            except ValueError as error:  # a cut-short or object array
+                raise ValueError(f"trajectory file {path}: cannot be read ({error})") from None
         elif path.suffix == ".json":
             poses = json.loads(path.read_text())
             if isinstance(poses, dict) and "cam_to_world" in poses:
