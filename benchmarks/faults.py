@@ -814,6 +814,13 @@ def corrupt_inputs(ws: Workspace) -> list[Row]:
     return [check(ws) for check in CORRUPT_INPUTS.values()]
 
 
+def resume_row(case: str, injected: str, happened: str, problems: list[str], left_after_kill: list, folder: Path) -> Row:
+    """The row of a kill-and-resume case: ok when nothing differed and nothing was left half-written."""
+    left_at_end = half_written(folder)
+    lost = "nothing" if not left_after_kill and not left_at_end else f"after the kill: {left_after_kill}; at the end: {left_at_end}"
+    return Row(case, injected, happened + (f" — {'; '.join(problems)}" if problems else ""), lost, not problems and lost == "nothing")
+
+
 # ------------------------------------------------------------------ case 2: kill in train-recon
 
 
