@@ -7,9 +7,11 @@
 
 import os
 
-from snakemake.utils import min_version, validate
+from snakemake.exceptions import WorkflowError
+from snakemake.utils import min_version
 
-from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, layer, read_yaml_mapping
+from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, check_workflow_config, layer, read_yaml_mapping
+from recondreamer.errors import RecondreamerError
 
 min_version("9.0")
 
@@ -17,10 +19,14 @@ min_version("9.0")
 # config/config.yaml holds every key; --configfile files (and --config values), which Snakemake
 # has already merged into `config`, set only what differs and are layered over it. Segment lists
 # and local checkpoints replace the default's instead of merging with them (configs.WHOLE_MAPPINGS).
-_layered = layer(read_yaml_mapping(os.path.join(workflow.basedir, DEFAULT_WORKFLOW_CONFIG)), config)
+_default_config = os.path.join(workflow.basedir, DEFAULT_WORKFLOW_CONFIG)
+_layered = layer(read_yaml_mapping(_default_config), config)
 config.clear()
 config.update(_layered)
-validate(config, "workflow/schemas/config.schema.yaml")
+try:  # a bad value is reported with the config file that set it
+    check_workflow_config(config, os.path.join(workflow.basedir, "workflow/schemas/config.schema.yaml"), [_default_config, *workflow.configfiles])
+except RecondreamerError as error:
+    raise WorkflowError(str(error)) from None
 
 
 report: "workflow/report/workflow.rst"

@@ -124,3 +124,37 @@ def workflow_config(*overrides: str | Path, root: str | Path = ".") -> dict:
     for path in overrides:
         config = layer(config, read_yaml_mapping(Path(root) / path))
     return config
+
+
+def check_workflow_config(config: Mapping, schema_file: str | Path, sources: list[str | Path]) -> None:
+    """Validate a layered workflow config against its JSON schema; RecondreamerError naming the
+    config file that set the offending key (the last of ``sources``, the layered files in order,
+    that holds it), the key and what is wrong. A key no file sets came from ``--config``."""
+    import jsonschema
+
+    schema = yaml.safe_load(Path(schema_file).read_text())
+    errors = list(jsonschema.validators.validator_for(schema)(schema).iter_errors(config))
+    if not errors:
+        return
+    error = jsonschema.exceptions.best_match(errors)
+    path = [str(part) for part in error.absolute_path]
+    key = ".".join(path) or "(top level)"
+    value = _lookup(config, path)
+    where = "--config (no config file sets it to this value)"
+    for source in reversed(sources):
+        found = _lookup(read_yaml_mapping(source), path)
+        if found is not _UNSET:
+            where = str(source) if found == value else where  # a different value: --config replaced the file's
+            break
+    more = f" ({len(errors) - 1} more problem(s) after fixing it)" if len(errors) > 1 else ""
+    raise RecondreamerError(f"{where}: config key {key}: {error.message}{more}")
+
+
+_UNSET = object()
+
+
+def _lookup(mapping: Any, path: list[str]) -> Any:
+    """The value at the key path ``path`` of nested mappings, or ``_UNSET``."""
+    for part in path:
+        mapping = mapping.get(part, _UNSET) if isinstance(mapping, Mapping) else _UNSET
+    return mapping

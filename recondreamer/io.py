@@ -213,3 +213,37 @@ def atomic_directory(path: str | os.PathLike, kind: str) -> Iterator[Path]:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
+
+
+SNAKEMAKE_FOLDER_STAMP = ".snakemake_timestamp"  # Snakemake dates a directory() output by this file inside it
+
+
+def restamp_edited_folder(folder: str | os.PathLike) -> list[Path]:
+    """Carry edits made inside a workflow's output folder onto the folder's date.
+
+    Snakemake dates a ``directory()`` output by the ``.snakemake_timestamp`` file it leaves inside
+    when the job ends, so a file edited in place later (a scene touched up by hand) leaves the
+    folder's date, and everything computed from it, looking up to date. When a file inside is
+    newer than that stamp, the stamp takes the newest file's modification time and the edited
+    files are returned (nothing else is written); a folder without a stamp (not a finished
+    Snakemake output, or replaced as a whole) is left alone and gives ``[]``.
+    """
+    folder = Path(folder)
+    stamp = folder / SNAKEMAKE_FOLDER_STAMP
+    try:
+        stamped = stamp.stat().st_mtime_ns
+    except FileNotFoundError:
+        return []
+    edited: list[tuple[int, Path]] = []
+    for directory, _, names in os.walk(folder):
+        for name in names:
+            path = Path(directory, name)
+            if path == stamp:
+                continue
+            modified = path.stat(follow_symlinks=False).st_mtime_ns
+            if modified > stamped:
+                edited.append((modified, path))
+    if edited:
+        newest = max(modified for modified, _ in edited)
+        os.utime(stamp, ns=(newest, newest))
+    return sorted(path for _, path in edited)

@@ -28,3 +28,6 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+pytest_plugins = ["workflow_fixtures"]  # the quick workflow run once per session, shared by the end-to-end modules

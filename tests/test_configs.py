@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, from_dict, layer, read_yaml_mapping, to_dict, workflow_config
+from recondreamer.configs import DEFAULT_WORKFLOW_CONFIG, check_workflow_config, from_dict, layer, read_yaml_mapping, to_dict, workflow_config
 from recondreamer.errors import RecondreamerError
 from recondreamer.evaluation.config import MODEL_CONFIGS
 from recondreamer.recon.config import ReconConfig, make_config
@@ -117,12 +117,38 @@ def _empty(tmp_path: Path) -> Path:
     return tmp_path / "empty.yaml"
 
 
+SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
+
+
+class TestCheckWorkflowConfig:
+    """A bad value names the config file that set it, the key and the problem."""
+
+    @staticmethod
+    def layered(tmp_path, override: dict, command_line: dict | None = None):
+        (tmp_path / "mine.yaml").write_text(yaml.safe_dump(override))
+        sources = [REPO / DEFAULT_WORKFLOW_CONFIG, REPO / "config" / "quick.yaml", tmp_path / "mine.yaml"]
+        config = workflow_config(*sources[1:], root=REPO)
+        return layer(config, command_line or {}), sources
+
+    def test_the_file_that_set_the_bad_value_is_named(self, tmp_path):
+        config, sources = self.layered(tmp_path, {"recon": {"iterations": -5}})
+        with pytest.raises(RecondreamerError, match=r"mine\.yaml: config key recon\.iterations: -5 is less than the minimum of 1"):
+            check_workflow_config(config, SCHEMA, sources)
+
+    def test_a_value_from_the_command_line_is_put_down_to_it(self, tmp_path):
+        config, sources = self.layered(tmp_path, {}, {"source": "bogus"})
+        with pytest.raises(RecondreamerError, match=r"^--config .*config key source: 'bogus' is not one of"):
+            check_workflow_config(config, SCHEMA, sources)
+
+    def test_a_valid_layered_config_passes(self, tmp_path):
+        config, sources = self.layered(tmp_path, {"recon": {"iterations": 7}})
+        check_workflow_config(config, SCHEMA, sources)
+
+
 class TestShippedConfigs:
     def test_the_default_config_holds_every_key_of_the_schema(self):
-        from snakemake.utils import validate
-
         config = read_yaml_mapping(REPO / DEFAULT_WORKFLOW_CONFIG)
-        validate(config, str(REPO / "workflow" / "schemas" / "config.schema.yaml"), set_default=False)  # every key is required
+        check_workflow_config(config, SCHEMA, [REPO / DEFAULT_WORKFLOW_CONFIG])  # no defaults in the schema: every key is required
 
     @pytest.mark.parametrize("name", OVERRIDE_CONFIGS)
     def test_override_files_set_only_what_differs_from_the_default(self, name):

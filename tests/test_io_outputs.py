@@ -14,7 +14,17 @@ import sys
 import pytest
 
 from recondreamer.cli import main
-from recondreamer.io import OUTPUT_MARKER, OutputPathError, OutputWriteError, atomic_directory, atomic_path, output_kind, write_text_atomic
+from recondreamer.io import (
+    OUTPUT_MARKER,
+    SNAKEMAKE_FOLDER_STAMP,
+    OutputPathError,
+    OutputWriteError,
+    atomic_directory,
+    atomic_path,
+    output_kind,
+    restamp_edited_folder,
+    write_text_atomic,
+)
 
 TINY_SCENE = ["--preset", "quick", "--frames", "3", "--width", "64", "--height", "48", "--no-novel"]
 
@@ -76,6 +86,40 @@ def _killed_mid_write(target, directory: bool) -> list:
     process.send_signal(signal.SIGKILL)
     process.wait()
     return sorted(target.parent.glob(f".{target.name}.*.tmp"))
+
+
+class TestRestampEditedFolder:
+    """A file edited inside a finished folder output dates the folder (Snakemake's stamp file)."""
+
+    @staticmethod
+    def finished_folder(tmp_path):
+        folder = tmp_path / "scene"
+        (folder / "images").mkdir(parents=True)
+        for name in ("scene.json", "images/000.png"):
+            (folder / name).write_bytes(b"x")
+            os.utime(folder / name, ns=(1_000_000_000, 1_000_000_000))
+        (folder / SNAKEMAKE_FOLDER_STAMP).touch()
+        os.utime(folder / SNAKEMAKE_FOLDER_STAMP, ns=(2_000_000_000, 2_000_000_000))
+        return folder
+
+    def test_an_untouched_folder_keeps_its_date(self, tmp_path):
+        folder = self.finished_folder(tmp_path)
+        assert restamp_edited_folder(folder) == []
+        assert (folder / SNAKEMAKE_FOLDER_STAMP).stat().st_mtime_ns == 2_000_000_000
+
+    def test_an_edit_in_a_subfolder_moves_the_stamp_to_the_edit(self, tmp_path):
+        folder = self.finished_folder(tmp_path)
+        os.utime(folder / "images" / "000.png", ns=(5_000_000_000, 5_000_000_000))
+        assert restamp_edited_folder(folder) == [folder / "images" / "000.png"]
+        assert (folder / SNAKEMAKE_FOLDER_STAMP).stat().st_mtime_ns == 5_000_000_000
+        assert restamp_edited_folder(folder) == []  # dated once: the next parse sees nothing new
+
+    def test_a_folder_without_a_stamp_or_missing_is_left_alone(self, tmp_path):
+        folder = self.finished_folder(tmp_path)
+        (folder / SNAKEMAKE_FOLDER_STAMP).unlink()
+        os.utime(folder / "scene.json", ns=(9_000_000_000, 9_000_000_000))
+        assert restamp_edited_folder(folder) == [] and not (folder / SNAKEMAKE_FOLDER_STAMP).exists()
+        assert restamp_edited_folder(tmp_path / "absent") == []
 
 
 class TestKilledWrites:

@@ -13,40 +13,21 @@ import pandas as pd
 import pytest
 import yaml
 
-REPO = Path(__file__).resolve().parents[1]
-QUICK_WEIGHTS = "results/quick-foundation/weights"
-TRAINING_COMMANDS = ("train-autoencoder", "pretrain-world-model", "train-restorer", "train-eval-models")
+from workflow_fixtures import EXPERIMENT_CONFIGS, QUICK_WEIGHTS, TRAINING_COMMANDS, snakemake
 
 
-def snakemake(root: Path, *args: str, timeout: int = 1700) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "snakemake", *args], check=False, cwd=root, capture_output=True, text=True, timeout=timeout)
-
-
-@pytest.fixture(scope="module")
-def root(tmp_path_factory):
-    """A workflow copy in which the quick foundation has built its weight set."""
-    root = tmp_path_factory.mktemp("wf")
-    for name in ("Snakefile", "workflow", "config", "profiles"):
-        source = REPO / name
-        (shutil.copytree if source.is_dir() else shutil.copy)(source, root / name)
-    run = snakemake(root, "--cores", "2", "--printshellcmds", "--configfile", "config/quick-foundation.yaml")
-    assert run.returncode == 0, run.stderr[-5000:]
-    for command in (*TRAINING_COMMANDS, "foundation-gates", "weights publish"):
-        assert f"recondreamer {command} " in run.stdout + run.stderr, command
-    return root
-
-
-def experiment_config(root: Path, weights: str) -> str:
-    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
-    config["foundation"] = {"weights": weights}
-    (root / "on-weights.yaml").write_text(yaml.safe_dump(config))
-    return "on-weights.yaml"
+def on_weights(root: Path, weights: str) -> tuple[str, str]:
+    """Config files for the quick experiment on the weight set ``weights``."""
+    (root / "on-weights.yaml").write_text(yaml.safe_dump({"foundation": {"weights": weights}}))
+    return "config/quick.yaml", "on-weights.yaml"
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
-def test_quick_foundation_publishes_a_verified_weight_set(root):
-    weights = root / QUICK_WEIGHTS
+def test_quick_foundation_publishes_a_verified_weight_set(quick_foundation):
+    for command in (*TRAINING_COMMANDS, "foundation-gates", "weights publish"):
+        assert f"recondreamer {command} " in quick_foundation.log, command
+    weights = quick_foundation.root / QUICK_WEIGHTS
     verify = subprocess.run([sys.executable, "-m", "recondreamer", "weights", "verify", str(weights)], check=False, capture_output=True, text=True)
     assert verify.returncode == 0 and "11 files verified" in verify.stdout, verify.stderr
     manifest = json.loads((weights / "manifest.json").read_text())
@@ -60,12 +41,10 @@ def test_quick_foundation_publishes_a_verified_weight_set(root):
 
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
-def test_quick_experiment_on_the_weight_set_trains_no_foundation_model(root):
-    configfile = experiment_config(root, QUICK_WEIGHTS)
-    run = snakemake(root, "--cores", "2", "--printshellcmds", "--configfile", configfile)
-    assert run.returncode == 0, run.stderr[-5000:]
+def test_quick_experiment_on_the_weight_set_trains_no_foundation_model(quick_experiment):
+    root = quick_experiment.root
     for command in TRAINING_COMMANDS:
-        assert f"recondreamer {command} " not in run.stdout + run.stderr, command
+        assert f"recondreamer {command} " not in quick_experiment.log, command
     assert not (root / "results" / "quick" / "models").exists() and not (root / "results" / "quick" / "eval_models").exists()
     tables = root / "results" / "quick" / "tables"
     expected_rows = {
@@ -95,14 +74,15 @@ def test_quick_experiment_on_the_weight_set_trains_no_foundation_model(root):
     assert "## Table 1: reconstruction baselines and ReconDreamer" in findings and "## Metric validity" in findings
     assert "fewer than 3 segments" in findings  # the quick config has one segment: no verdict claims significance
     assert f"from the weight set {QUICK_WEIGHTS}" in (tables / "table1.md").read_text()
-    report = snakemake(root, "--configfile", configfile, "--report", "report.html", timeout=600)
+    report = snakemake(root, "--configfile", *EXPERIMENT_CONFIGS, "--report", "report.html", timeout=600)
     assert report.returncode == 0, report.stderr[-5000:]
     assert (root / "report.html").stat().st_size > 10_000
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(600)
-def test_an_altered_missing_or_foreign_file_stops_the_run_at_parse_time(root, tmp_path):
+def test_an_altered_missing_or_foreign_file_stops_the_run_at_parse_time(quick_foundation):
+    root = quick_foundation.root
     source = root / QUICK_WEIGHTS
     cases = {
         "altered": (lambda d: (d / "restorer_dd2_mask.pt").open("ab").write(b"\0"), "restorer_dd2_mask.pt: altered: sha256"),
@@ -113,15 +93,12 @@ def test_an_altered_missing_or_foreign_file_stops_the_run_at_parse_time(root, tm
         copy = root / f"weights-{name}"
         shutil.copytree(source, copy)
         damage(copy)
-        result = snakemake(root, "-n", "--configfile", experiment_config(root, copy.name), timeout=300)
+        result = snakemake(root, "-n", "--configfile", *on_weights(root, copy.name), timeout=300)
         assert result.returncode != 0 and message in result.stdout + result.stderr, (name, result.stdout[-2000:] + result.stderr[-2000:])
         assert "train-restorer" not in result.stdout
     # Evaluation seeds the set's models saw are refused.
-    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
-    config["foundation"] = {"weights": QUICK_WEIGHTS}
-    config["synthetic"]["segments"] = {"seen": 10001}
-    (root / "seen.yaml").write_text(yaml.safe_dump(config))
-    result = snakemake(root, "-n", "--configfile", "seen.yaml", timeout=300)
+    (root / "seen.yaml").write_text(yaml.safe_dump({"synthetic": {"segments": {"seen": 10001}}}))
+    result = snakemake(root, "-n", "--configfile", *EXPERIMENT_CONFIGS, "seen.yaml", timeout=300)
     assert result.returncode != 0 and "synthetic.segments seeds [10001] are corpus or gate seeds of the weight set" in result.stdout + result.stderr
 
 

@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import logging
 
-from recondreamer.recon.config import MODEL_TYPES, PRESETS
+from recondreamer.cli_options import add_config_options, apply_options
+from recondreamer.recon.config import MODEL_TYPES, PRESETS, ReconConfig, make_config
+
+TRAIN_OPTIONS = ("iterations", "seed", "backend", "device")  # ReconConfig fields train-recon sets from flags
 
 log = logging.getLogger(__name__)
 
@@ -36,34 +39,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=PRESETS,
         help="size preset: quick (tests), default (CPU, synthetic scenes), paper (GPU, 50k iterations)",
     )
-    train.add_argument(
-        "--iterations",
-        type=int,
-        default=None,
-        help="override the preset's number of iterations",
-    )
-    train.add_argument(
-        "--seed",
-        type=int,
-        default=0,
-        help="random seed (initialisation, view order, splits)",
-    )
+    add_config_options(train, ReconConfig, TRAIN_OPTIONS, defaults=make_config(MODEL_TYPES[0], "default"),
+                       title="training (ReconConfig; defaults shown for --preset default)")
     train.add_argument(
         "--threads",
         type=int,
         default=None,
         help="torch CPU threads (default: torch's choice)",
-    )
-    train.add_argument(
-        "--backend",
-        default="auto",
-        choices=("auto", "torch", "cpu", "gsplat"),
-        help="rasteriser backend (auto = gsplat on CUDA, else the C++ CPU kernel)",
-    )
-    train.add_argument(
-        "--device",
-        default="cpu",
-        help="torch device of the model, e.g. cpu or cuda (cuda uses the gsplat backend)",
     )
     train.set_defaults(func=run_train)
 
@@ -114,24 +96,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_train(args: argparse.Namespace) -> int:
     import torch
 
-    from recondreamer.errors import RecondreamerError
-    from recondreamer.recon.config import make_config
     from recondreamer.recon.trainer import train_scene
     from recondreamer.device import resolve_device
     from recondreamer.scene import load_scene
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    resolve_device(args.device, "--device")  # a clear error before any work when CUDA is missing
+    config = apply_options(args, make_config(args.model, args.preset), TRAIN_OPTIONS)
+    resolve_device(config.device, "--device")  # a clear error before any work when CUDA is missing
     scene = load_scene(args.scene)
-    overrides = {"seed": args.seed, "backend": args.backend, "device": args.device}
-    if args.iterations is not None:
-        if args.iterations < 1:
-            raise RecondreamerError(
-                f"--iterations must be at least 1, got {args.iterations}"
-            )
-        overrides["iterations"] = args.iterations
-    config = make_config(args.model, args.preset, **overrides)
     model = train_scene(scene, config, args.out)
     log.info(
         "done: %s with %d Gaussians in %s", args.model, len(model.gaussians), args.out

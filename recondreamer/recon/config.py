@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from recondreamer.errors import RecondreamerError
+from recondreamer.errors import ConfigValueError, RecondreamerError
 
 MODEL_TYPES = ("street", "pvg", "deformable", "s3")
 PRESETS = ("quick", "default", "paper")
@@ -121,12 +121,10 @@ class ReconConfig:
 
     model: str = "street"
     preset: str = "default"
-    iterations: int = 2000
-    seed: int = 0
-    backend: str = "auto"  # rasterizer backend
-    device: str = (
-        "cpu"  # torch device of the model ("cuda" pairs with the gsplat backend)
-    )
+    iterations: int = 2000  # training iterations (each preset sets its own)
+    seed: int = 0  # random seed (initialisation, view order, splits)
+    backend: str = "auto"  # rasteriser: auto (gsplat on CUDA, else the C++ CPU kernel), torch, cpu or gsplat
+    device: str = "cpu"  # torch device of the model, e.g. cpu or cuda (cuda pairs with the gsplat backend)
     log_every: int = 100
     checkpoint_every: int = 500
     snapshot_steps: tuple[int, ...] = ()
@@ -141,6 +139,14 @@ class ReconConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     loss: LossConfig = field(default_factory=LossConfig)
+
+    def check(self) -> None:
+        from recondreamer.splat.validation import BACKENDS  # the rasteriser's list (imports torch: not at module load)
+
+        if self.iterations < 1:
+            raise ConfigValueError("iterations", f"must be at least 1, got {self.iterations}")
+        if self.backend not in BACKENDS:
+            raise ConfigValueError("backend", f"must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
 
 
 def make_config(model: str, preset: str = "default", **overrides) -> ReconConfig:

@@ -3,9 +3,11 @@
 # builder reads them with.
 
 import os
+import sys
 
 from snakemake.exceptions import WorkflowError
 
+from recondreamer.io import restamp_edited_folder
 from recondreamer.foundation.weights import WeightsError, verify_weight_set, weight_file
 from recondreamer.report.layout import features_file, metrics_file, model_path, render_dir, restorer_checkpoint_path, run_dir, weight_set_dir
 from recondreamer.experiment_plan import ExperimentPlan
@@ -153,6 +155,20 @@ TABLES = [1, 2, 4, 5] if config["preference"]["judge"] == "none" else [1, 2, 3, 
 # first; the baselines the pairs read and the evaluation models every evaluation waits for come next.
 RESTORER_PATH_PRIORITY = 10
 FEEDER_PRIORITY = 5
+
+
+def _restamp_edited_scenes():
+    """A scene edited in place after its rule finished is dated by its newest file (parse time), so
+    what was computed from it is planned again; the user is told which files."""
+    for folder in [results("scenes", s) for s in SEGMENTS] + [results("corpus", c) for c in CORPUS_SCENES]:
+        edited = restamp_edited_folder(folder)
+        if edited:
+            shown = ", ".join(os.path.relpath(path, folder) for path in edited[:3]) + (", ..." if len(edited) > 3 else "")
+            print(f"{folder}: {len(edited)} file(s) edited after the scene was written ({shown}): "
+                  "what depends on the scene is planned again", file=sys.stderr)
+
+
+_restamp_edited_scenes()
 
 
 wildcard_constraints:

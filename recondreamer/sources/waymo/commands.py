@@ -1,4 +1,5 @@
-"""Sub-command ``recondreamer convert-waymo``: one Waymo segment to a scene directory."""
+"""Sub-commands ``recondreamer convert-waymo`` (a Waymo segment to a scene directory) and
+``export-waymo`` (a synthetic scene to a Waymo segment file, to run the real-data path on known truth)."""
 
 from __future__ import annotations
 
@@ -32,10 +33,29 @@ def register(subparsers) -> None:
     )
     parser.set_defaults(func=_convert)
 
+    parser = subparsers.add_parser(
+        "export-waymo",
+        help="write a synthetic scene as a Waymo Open Dataset v1 segment (.tfrecord)",
+        description="Write a synthetic scene's camera frames (JPEG), calibration, poses, 3D boxes, LiDAR (as a TOP "
+        "range image) and map as a Waymo Open Dataset v1 segment, so that convert-waymo and the workflow's "
+        "'source: waymo' path can run on scenes whose truth is known.",
+    )
+    parser.add_argument("scene", metavar="SCENE_DIR", help="a scene written by 'recondreamer synth'")
+    parser.add_argument("--out", required=True, metavar="FILE.tfrecord", help="segment file to write (replaced atomically)")
+    parser.set_defaults(func=_export)
+
 
 def _convert(args: argparse.Namespace) -> int:
     from recondreamer.sources.waymo.convert import convert_waymo
 
     out = convert_waymo(args.tfrecord, args.out, start=args.start, end=args.end, camera=args.camera)
+    log.info("wrote %s", out)
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from recondreamer.sources.waymo.export import export_waymo
+
+    out = export_waymo(args.scene, args.out)
     log.info("wrote %s", out)
     return 0
