@@ -31,6 +31,7 @@ from recondreamer.generative.models import (
 )
 from recondreamer.generative.training import sample_batch, unet_loss
 from recondreamer.generative.unet import LatentUNet
+from recondreamer.recon.commands import training_config
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -89,7 +90,7 @@ def test_methods_run_their_generative_models_on_the_recon_device_unless_told_oth
     parser = build_parser()
     common = ["--scene", "s", "--model", "street", "--out", "o"]
     recon = parser.parse_args(["train-recondreamer", *common, "--restorer", "r", "--stride", "1.5"])
-    assert recon.restorer_device is None and recon.device == "cpu"
+    assert recon.restorer_device is None and training_config(recon).device == "cpu"  # the restorer follows it
     recon = parser.parse_args(["train-recondreamer", *common, "--restorer", "r", "--stride", "1.5", "--restorer-device", "cuda"])
     assert recon.restorer_device == "cuda"
     dd4d = parser.parse_args(["train-dd4d", *common, "--world-model", "w", "--world-model-device", "cuda"])

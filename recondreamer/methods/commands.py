@@ -6,24 +6,11 @@ import argparse
 import logging
 from pathlib import Path
 
-from recondreamer.recon.config import MODEL_TYPES, PRESETS
+from recondreamer.recon.commands import add_training_options, training_config
 
 log = logging.getLogger(__name__)
 
 TRUTH = "truth"  # --restorer value of the oracle restorer
-
-
-def _add_recon_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", required=True, metavar="DIR", help="scene directory (docs/scene-format.md)")
-    parser.add_argument("--model", required=True, choices=MODEL_TYPES, help="reconstruction backbone")
-    parser.add_argument("--out", required=True, metavar="RUN", help="run directory to create or resume (RUN/model.pt as train-recon)")
-    parser.add_argument("--preset", default="default", choices=PRESETS,
-                        help="reconstruction size preset: quick (tests), default (CPU), paper (GPU, 50k iterations)")
-    parser.add_argument("--iterations", type=int, default=None, help="override the preset's number of iterations")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (reconstruction and sampling)")
-    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
-    parser.add_argument("--backend", default="auto", choices=("auto", "torch", "cpu", "gsplat"), help="rasteriser backend")
-    parser.add_argument("--device", default="cpu", help="torch device of the reconstruction (cpu or cuda)")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -36,7 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "Writes RUN/model.pt like train-recon, RUN/updates/update_KK/{rendered,restored}/ and RUN/pdus.json; "
         "re-running after a kill resumes.",
     )
-    _add_recon_options(recon)
+    add_training_options(recon)
     recon.add_argument("--restorer", required=True, metavar="CKPT",
                        help="DriveRestorer checkpoint (train-restorer output), or 'truth': an oracle that returns the true "
                        "views of each shifted trajectory (synthetic scenes only; the upper bound of any restorer)")
@@ -60,7 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "RUN/model.pt like train-recon and RUN/generated/<trajectory>/; re-running after a kill resumes. With "
         "--generated DIR the videos are read from DIR (written once per segment by 'recondreamer dd4d-generate').",
     )
-    _add_recon_options(dd4d)
+    add_training_options(dd4d)
     dd4d.add_argument("--world-model", metavar="CKPT", help="pretrained dd2 world-model checkpoint (needed unless --generated)")
     dd4d.add_argument("--generated", metavar="DIR",
                       help="read the videos from DIR/<trajectory>/ (frames written by 'recondreamer dd4d-generate' for this "
@@ -73,24 +60,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     dd4d.set_defaults(func=run_train_dd4d)
 
 
-def _config(args: argparse.Namespace):
-    import torch
-
-    from recondreamer.errors import RecondreamerError
-    from recondreamer.recon.config import make_config
-    from recondreamer.device import resolve_device
-
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    resolve_device(args.device, "--device")
-    overrides = {"seed": args.seed, "backend": args.backend, "device": args.device}
-    if args.iterations is not None:
-        if args.iterations < 1:
-            raise RecondreamerError(f"--iterations must be at least 1, got {args.iterations}")
-        overrides["iterations"] = args.iterations
-    return make_config(args.model, args.preset, **overrides)
-
-
 def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.methods.loop import train_recondreamer
@@ -100,7 +69,7 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.scene import load_scene
     from recondreamer.sources.synthetic.truth import TrueViewRenderer
 
-    config = _config(args)
+    config = training_config(args)
     if args.restore_strength is not None and not 0.0 < args.restore_strength <= 1.0:
         raise RecondreamerError(f"--restore-strength must lie in (0, 1], got {args.restore_strength}")
     schedule = PdusSchedule.for_iterations(args.stride, config.iterations, args.update_every, args.max_offset)
@@ -108,7 +77,7 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     if args.restorer == TRUTH:
         restorer, restorer_path = TrueViewRenderer(scene), TRUTH
     else:
-        device = resolve_device(args.restorer_device or args.device, "--restorer-device" if args.restorer_device else "--device")
+        device = resolve_device(args.restorer_device or config.device, "--restorer-device" if args.restorer_device else "--device")
         restorer, restorer_path = load_restorer(args.restorer, device), str(Path(args.restorer).resolve())
     model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_steps,
                                restorer_path=restorer_path, restore_strength=args.restore_strength)
@@ -124,7 +93,7 @@ def run_train_dd4d(args: argparse.Namespace) -> int:
     from recondreamer.generative.inference import load_world_model
     from recondreamer.scene import load_scene
 
-    config = _config(args)
+    config = training_config(args)
     trajectories = tuple(name.strip() for name in args.trajectories.split(",") if name.strip())
     if not trajectories:
         raise RecondreamerError("--trajectories: give at least one trajectory name")
@@ -133,7 +102,7 @@ def run_train_dd4d(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     world_model = None
     if args.world_model is not None:
-        device = resolve_device(args.world_model_device or args.device, "--world-model-device" if args.world_model_device else "--device")
+        device = resolve_device(args.world_model_device or config.device, "--world-model-device" if args.world_model_device else "--device")
         world_model = load_world_model(args.world_model, device)
         if world_model.arch != "dd2":
             raise RecondreamerError(f"{args.world_model}: DriveDreamer4D needs the dd2 world model, got {world_model.arch!r}")

@@ -13,6 +13,32 @@ TRAIN_OPTIONS = ("iterations", "seed", "backend", "device")  # ReconConfig field
 log = logging.getLogger(__name__)
 
 
+def add_training_options(parser: argparse.ArgumentParser) -> None:
+    """The options of every command that trains a reconstruction (train-recon, train-recondreamer, train-dd4d)."""
+    parser.add_argument("--scene", required=True, metavar="DIR", help="scene directory (docs/scene-format.md)")
+    parser.add_argument("--model", required=True, choices=MODEL_TYPES, help="reconstruction backbone")
+    parser.add_argument("--out", required=True, metavar="RUN", help="run directory to create or resume")
+    parser.add_argument("--preset", default="default", choices=PRESETS,
+                        help="size preset: quick (tests), default (CPU, synthetic scenes), paper (GPU, 50k iterations)")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    add_config_options(parser, ReconConfig, TRAIN_OPTIONS, defaults=make_config(MODEL_TYPES[0], "default"),
+                       title="training (ReconConfig; defaults shown for --preset default)")
+
+
+def training_config(args: argparse.Namespace) -> ReconConfig:
+    """The reconstruction config the options of ``add_training_options`` ask for, its device checked
+    (a clear error before any work when CUDA is missing); sets the torch thread count."""
+    import torch
+
+    from recondreamer.device import resolve_device
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    config = apply_options(args, make_config(args.model, args.preset), TRAIN_OPTIONS)
+    resolve_device(config.device, "--device")
+    return config
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     train = subparsers.add_parser(
         "train-recon",
@@ -21,32 +47,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "checkpoint.pt (resume), model.pt (final), snapshots/step_N.pt, train.log and run.json; "
         "re-running the same command after a kill resumes from the last checkpoint.",
     )
-    train.add_argument(
-        "--scene",
-        required=True,
-        metavar="DIR",
-        help="scene directory (docs/scene-format.md)",
-    )
-    train.add_argument(
-        "--model", required=True, choices=MODEL_TYPES, help="reconstruction backbone"
-    )
-    train.add_argument(
-        "--out", required=True, metavar="RUN", help="run directory to create or resume"
-    )
-    train.add_argument(
-        "--preset",
-        default="default",
-        choices=PRESETS,
-        help="size preset: quick (tests), default (CPU, synthetic scenes), paper (GPU, 50k iterations)",
-    )
-    add_config_options(train, ReconConfig, TRAIN_OPTIONS, defaults=make_config(MODEL_TYPES[0], "default"),
-                       title="training (ReconConfig; defaults shown for --preset default)")
-    train.add_argument(
-        "--threads",
-        type=int,
-        default=None,
-        help="torch CPU threads (default: torch's choice)",
-    )
+    add_training_options(train)
     train.set_defaults(func=run_train)
 
     render = subparsers.add_parser(
@@ -94,16 +95,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    import torch
-
     from recondreamer.recon.trainer import train_scene
-    from recondreamer.device import resolve_device
     from recondreamer.scene import load_scene
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    config = apply_options(args, make_config(args.model, args.preset), TRAIN_OPTIONS)
-    resolve_device(config.device, "--device")  # a clear error before any work when CUDA is missing
+    config = training_config(args)
     scene = load_scene(args.scene)
     model = train_scene(scene, config, args.out)
     log.info(
