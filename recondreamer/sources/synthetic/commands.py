@@ -5,8 +5,11 @@ from __future__ import annotations
 import argparse
 import logging
 
+from recondreamer.cli_options import add_config_options
+from recondreamer.sources.synthetic.config import PRESETS, SyntheticConfig
+
 log = logging.getLogger(__name__)
-PRESET_NAMES = ("default", "compact", "quick")  # keep in step with config.PRESETS (not imported: --help stays light)
+SIZE_OPTIONS = ("width", "height", "frames")  # SyntheticConfig fields synth takes as flags over the preset
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -19,10 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     synth.add_argument("--seed", type=int, required=True, help="world seed (non-negative integer)")
     synth.add_argument("--out", required=True, help="scene directory to write (replaced atomically if it exists)")
-    synth.add_argument("--preset", default="default", choices=PRESET_NAMES, help="render preset: default = 240x160, 40 frames; compact = 144x96, 24 frames; quick = 96x64, 12 frames (default: default)")
-    synth.add_argument("--width", type=int, help="override the preset's image width in pixels")
-    synth.add_argument("--height", type=int, help="override the preset's image height in pixels")
-    synth.add_argument("--frames", type=int, help="override the preset's number of frames (10 Hz)")
+    synth.add_argument("--preset", default="default", choices=tuple(PRESETS), help="render preset: default = 240x160, 40 frames; compact = 144x96, 24 frames; quick = 96x64, 12 frames (default: default)")
+    add_config_options(synth, SyntheticConfig, SIZE_OPTIONS, defaults={"*": "the preset's"}, title="segment size (SyntheticConfig)")
     synth.add_argument("--no-novel", action="store_true", help="skip the true novel views (faster; the scene then has none)")
     synth.add_argument("--scene-id", help="scene id stored in the scene (default: synth-seed<SEED>)")
     synth.set_defaults(func=run_synth)
@@ -61,7 +62,7 @@ def run_synth(args: argparse.Namespace) -> int:
     from recondreamer.sources.synthetic import generate_segment
 
     check_replaceable(args.out, "scene")  # before minutes of rendering
-    overrides = {"width": args.width, "height": args.height, "frames": args.frames}
+    overrides = {name: getattr(args, name) for name in SIZE_OPTIONS}
     if args.no_novel:
         overrides["novel_views"] = False
     data = generate_segment(args.seed, args.preset, scene_id=args.scene_id, **overrides)
