@@ -8,13 +8,14 @@ import logging
 from pathlib import Path
 
 from recondreamer.cli_options import add_config_options, apply_options
-from recondreamer.evaluation.config import DetectorConfig, EvalModelsConfig
+from recondreamer.evaluation.config import DetectorConfig, EvalModelsConfig, ScoringConfig
 
 log = logging.getLogger(__name__)
 
 GATE_FAILED_EXIT = 3
 EVAL_MODELS_OPTIONS = ("detector_steps", "lane_steps", "feature_steps", "batch_size", "frame_stride", "holdout_scenes", "max_scenes",
                        "min_lidar_points", "crop", "device", "seed")
+SCORING_OPTIONS = ("min_lidar_points", "score_threshold")  # ScoringConfig fields evaluate takes as flags
 
 
 def register(subparsers) -> None:
@@ -51,8 +52,7 @@ def register(subparsers) -> None:
     p.add_argument("--detector", type=Path, default=None, help="vehicle detector model file (overrides --models)")
     p.add_argument("--lane-model", type=Path, default=None, help="lane segmenter model file (overrides --models)")
     p.add_argument("--fid-model", type=Path, default=None, help="FID feature network file (overrides --models): a train-eval-models fid_features.pt, or a local copy of pytorch-fid's InceptionV3 weights (pt_inception-2015-12-05-6726825d.pth) for the published FID's 2048-d pool features")
-    p.add_argument("--min-lidar-points", type=int, default=10, help="NTA-IoU ground truth keeps vehicles with at least this many LiDAR points (default 10)")
-    p.add_argument("--score-threshold", type=float, default=0.5, help="detector confidence threshold (default 0.5)")
+    add_config_options(p, ScoringConfig, SCORING_OPTIONS, title="scoring (ScoringConfig)")
     p.add_argument("--out", required=True, type=Path, help="metrics JSON file to write")
     p.add_argument("--features-out", type=Path, default=None, help="FID feature file (default: OUT with suffix .features.npz)")
     p.add_argument("--device", default="cpu", help="torch device to render the --run on, e.g. cpu or cuda (default cpu; the metric networks run on the CPU)")
@@ -132,6 +132,7 @@ def _evaluate(args: argparse.Namespace) -> int:
 
     if len(args.renders) != len(args.trajectory):
         raise RecondreamerError(f"give one --renders per --trajectory: got {len(args.renders)} --renders and {len(args.trajectory)} --trajectory")
+    scoring = apply_options(args, ScoringConfig(), SCORING_OPTIONS)
     if args.threads:
         torch.set_num_threads(args.threads)
     device = resolve_device(args.device, "--device")
@@ -142,7 +143,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         from recondreamer.scene import load_scene
 
         render_to_directories(load_model(args.run).to(device), load_scene(args.scene), list(zip(args.trajectory, args.renders)))
-    document, features = evaluate_scene(args.scene, list(zip(args.trajectory, args.renders)), models, args.min_lidar_points, args.score_threshold)
+    document, features = evaluate_scene(args.scene, list(zip(args.trajectory, args.renders)), models, scoring.min_lidar_points, scoring.score_threshold)
     features_out = args.features_out or args.out.with_suffix(".features.npz")
     document["settings"]["features_file"] = str(features_out)
     write_features(features_out, document["scene"]["scene_id"], features, models.features)

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from recondreamer.errors import ConfigValueError
-from recondreamer.evaluation.nta_iou import DEFAULT_MIN_LIDAR_POINTS
+from recondreamer.evaluation.nta_iou import DEFAULT_MIN_LIDAR_POINTS, DETECTION_SCORE_THRESHOLD
 
 
 @dataclass
@@ -96,3 +96,17 @@ class EvalModelsConfig:
             raise ConfigValueError("max_scenes", f"must be at least 1, got {self.max_scenes}")
         if any(c < 0 or c % 16 for c in self.crop):
             raise ConfigValueError("crop", f"must be two multiples of 16 (or 0 0), got {self.crop[0]} {self.crop[1]}")
+
+
+@dataclass
+class ScoringConfig:
+    """How ``evaluate`` scores renders (the NTA-IoU protocol's settings)."""
+
+    min_lidar_points: int = DEFAULT_MIN_LIDAR_POINTS  # NTA-IoU ground truth keeps vehicles with at least this many LiDAR points
+    score_threshold: float = DETECTION_SCORE_THRESHOLD  # detector confidence above which a detection counts
+
+    def check(self) -> None:
+        if self.min_lidar_points < 0:
+            raise ConfigValueError("min_lidar_points", f"must be at least 0, got {self.min_lidar_points}")
+        if not 0.0 <= self.score_threshold < 1.0:
+            raise ConfigValueError("score_threshold", f"must lie in [0, 1), got {self.score_threshold}")
