@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import scipy.linalg
+from op_tester import BaseTester
 
 from recondreamer.evaluation import frechet, image_metrics, lanes, nta_iou
 from recondreamer.scene.types import Polyline
@@ -214,19 +215,47 @@ def test_ntl_iou_two_class_mean_and_lane_only():
 # ---------------------------------------------------------------- PSNR / SSIM
 
 
-def test_psnr_and_ssim_known_values_and_masks():
+def image_pair():
+    """(truth uint8, render float in [0,1] with error only in the top half, bottom-half mask)."""
     rng = np.random.default_rng(3)
     truth = rng.integers(0, 256, size=(32, 48, 3), dtype=np.uint8)
-    assert image_metrics.psnr(truth, truth) == float("inf")
-    assert image_metrics.ssim(truth, truth) == pytest.approx(1.0)
     render = truth.astype(float) / 255.0
     render[:16] = np.clip(render[:16] + 0.1, 0, 1)  # error only in the top half
     mask_bottom = np.zeros((32, 48), bool)
     mask_bottom[16:] = True
-    assert image_metrics.psnr(render, truth / 255.0, mask_bottom) == float("inf")
-    mse_top = np.mean((render[:16] - truth[:16] / 255.0) ** 2)
-    assert image_metrics.psnr(render, truth / 255.0, ~mask_bottom) == pytest.approx(-10 * np.log10(mse_top))
-    assert image_metrics.ssim(render, truth / 255.0) < 1.0
-    assert image_metrics.psnr(render, truth / 255.0, np.zeros((32, 48), bool)) is None
-    with pytest.raises(ValueError, match="differ in size"):
-        image_metrics.psnr(truth[:10], truth)
+    return truth, render, mask_bottom
+
+
+class TestPSNR(BaseTester):
+    """``image_metrics.psnr``: over the whole image or inside a mask."""
+
+    def test_smoke_identical_images_give_infinity(self):
+        truth, _, _ = image_pair()
+        assert image_metrics.psnr(truth, truth) == float("inf")
+
+    def test_correctness_inside_masks(self):
+        truth, render, mask_bottom = image_pair()
+        assert image_metrics.psnr(render, truth / 255.0, mask_bottom) == float("inf")
+        mse_top = np.mean((render[:16] - truth[:16] / 255.0) ** 2)
+        self.assert_close(image_metrics.psnr(render, truth / 255.0, ~mask_bottom), -10 * np.log10(mse_top))
+
+    def test_cardinality_empty_mask_gives_none(self):
+        truth, render, _ = image_pair()
+        assert image_metrics.psnr(render, truth / 255.0, np.zeros((32, 48), bool)) is None
+
+    def test_exception(self):
+        truth, _, _ = image_pair()
+        with pytest.raises(ValueError, match="differ in size"):
+            image_metrics.psnr(truth[:10], truth)
+
+
+class TestSSIM(BaseTester):
+    """``image_metrics.ssim``: kornia's SSIM averaged over the image."""
+
+    def test_correctness_identical_images_give_one(self):
+        truth, _, _ = image_pair()
+        self.assert_close(image_metrics.ssim(truth, truth), 1.0)
+
+    def test_correctness_an_error_lowers_it(self):
+        truth, render, _ = image_pair()
+        assert image_metrics.ssim(render, truth / 255.0) < 1.0

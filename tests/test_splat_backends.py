@@ -5,6 +5,9 @@ float64 1e-9 (the kernels follow the reference's arithmetic; only summation orde
 float32 2e-4 for images and gradients (float32 rounding, the kernel's own exp to a few ulp).
 gsplat (CUDA only; untested where no GPU is present) computes in float32, clamps alpha at 0.999
 and bounds supports its own way: its scenes keep opacity <= 0.98 and the tolerance is 2e-3.
+These bounds are relative to the whole tensor's scale, not elementwise as op_tester's table: a
+gradient entry sums a splat's contributions over every pixel it covers, and its float32 rounding
+follows the largest entries of its tensor rather than its own size.
 """
 
 from __future__ import annotations
@@ -13,10 +16,12 @@ import math
 
 import pytest
 import torch
+from op_tester import BaseTester
 
 from recondreamer.splat import rasterize
 
-TOLERANCE = {torch.float64: 1e-9, torch.float32: 2e-4}
+# Max abs error over a tensor, relative to 1 + the largest magnitude of its reference (see above).
+SCALED_TOLERANCE = {torch.float64: 1e-9, torch.float32: 2e-4}
 GSPLAT_TOLERANCE = 2e-3
 GSPLAT_MAX_OPACITY = 0.98
 BACKENDS = [
@@ -82,7 +87,7 @@ def _grad(tensor: torch.Tensor) -> torch.Tensor:
 
 
 def assert_matches_reference(backend, scene, viewmat, K, width, height, background=None):
-    tolerance = TOLERANCE[scene[0].dtype]
+    tolerance = SCALED_TOLERANCE[scene[0].dtype]
     if backend == "gsplat":
         tolerance = GSPLAT_TOLERANCE
         scene = scene[:3] + [scene[3] * GSPLAT_MAX_OPACITY] + scene[4:]
@@ -95,39 +100,15 @@ def assert_matches_reference(backend, scene, viewmat, K, width, height, backgrou
         if name in ("radii", "visible"):
             assert torch.equal(got, want), name
             continue
-        scale = 1.0 + (want.abs().max().item() if want.numel() else 0.0)
-        error = (got - want).abs().max().item() if want.numel() else 0.0
-        assert error <= tolerance * scale, f"{name}: max abs error {error:.3g} (scale {scale:.3g})"
+        assert_scaled_close(got, want, tolerance, name)
     return expected
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-@pytest.mark.parametrize("size", [(32, 24), (37, 21)])
-def test_random_scene_matches_reference(backend, dtype, size):
-    width, height = size
-    viewmat, K = camera(width, height, dtype)
-    scene = random_scene(150, seed=width, dtype=dtype)
-    expected = assert_matches_reference(backend, scene, viewmat, K, width, height)
-    assert expected["alpha"].max() > 0.5  # the scene does cover the image
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("sh_coefficients", [1, 4, 9, 16])
-def test_sh_degrees_match_reference(backend, sh_coefficients):
-    viewmat, K = camera(32, 24, torch.float64)
-    scene = random_scene(60, seed=sh_coefficients, dtype=torch.float64, sh_coefficients=sh_coefficients)
-    assert_matches_reference(backend, scene, viewmat, K, 32, 24)
-
-
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_background_gradient_matches_reference(backend):
-    viewmat, K = camera(32, 24, torch.float64)
-    scene = random_scene(40, seed=3, dtype=torch.float64)
-    expected = assert_matches_reference(
-        backend, scene, viewmat, K, 32, 24, torch.tensor([0.3, 0.6, 0.9], dtype=torch.float64)
-    )
-    assert expected["grad_background"].abs().sum() > 0
+def assert_scaled_close(got: torch.Tensor, want: torch.Tensor, tolerance: float, name: str) -> None:
+    """Max abs error <= tolerance * (1 + the largest magnitude of ``want``)."""
+    scale = 1.0 + (want.abs().max().item() if want.numel() else 0.0)
+    error = (got - want).abs().max().item() if want.numel() else 0.0
+    assert error <= tolerance * scale, f"{name}: max abs error {error:.3g} (scale {scale:.3g})"
 
 
 def edge_scene(kind: str, dtype: torch.dtype):
@@ -156,92 +137,121 @@ def edge_scene(kind: str, dtype: torch.dtype):
     return [t.to(dtype) for t in (means, quats, scales, opacities, colors)]
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("kind", ["behind_camera", "border", "thin", "large", "zero_opacity", "saturated"])
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_edge_cases_match_reference(backend, kind, dtype):
-    viewmat, K = camera(32, 24, dtype)
-    assert_matches_reference(backend, edge_scene(kind, dtype), viewmat, K, 32, 24)
+class TestRasterizeBackends(BaseTester):
+    """``rasterize`` on each fast backend against ``backend="torch"``: outputs and gradients."""
+
+    @pytest.mark.parametrize("backend", BACKENDS)
+    @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+    @pytest.mark.parametrize("size", [(32, 24), (37, 21)])
+    def test_correctness(self, backend, dtype, size):
+        width, height = size
+        viewmat, K = camera(width, height, dtype)
+        scene = random_scene(150, seed=width, dtype=dtype)
+        expected = assert_matches_reference(backend, scene, viewmat, K, width, height)
+        assert expected["alpha"].max() > 0.5  # the scene does cover the image
+
+    @pytest.mark.parametrize("backend", BACKENDS)
+    @pytest.mark.parametrize("sh_coefficients", [1, 4, 9, 16])
+    def test_correctness_sh_degrees(self, backend, sh_coefficients):
+        viewmat, K = camera(32, 24, torch.float64)
+        scene = random_scene(60, seed=sh_coefficients, dtype=torch.float64, sh_coefficients=sh_coefficients)
+        assert_matches_reference(backend, scene, viewmat, K, 32, 24)
+
+    @pytest.mark.parametrize("backend", BACKENDS)
+    def test_correctness_background_gradient(self, backend):
+        viewmat, K = camera(32, 24, torch.float64)
+        scene = random_scene(40, seed=3, dtype=torch.float64)
+        expected = assert_matches_reference(
+            backend, scene, viewmat, K, 32, 24, torch.tensor([0.3, 0.6, 0.9], dtype=torch.float64)
+        )
+        assert expected["grad_background"].abs().sum() > 0
+
+    @pytest.mark.parametrize("backend", BACKENDS)
+    @pytest.mark.parametrize("kind", ["behind_camera", "border", "thin", "large", "zero_opacity", "saturated"])
+    @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+    def test_correctness_edge_cases(self, backend, kind, dtype):
+        viewmat, K = camera(32, 24, dtype)
+        assert_matches_reference(backend, edge_scene(kind, dtype), viewmat, K, 32, 24)
+
+    @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+    def test_correctness_dense_multi_tile_scene_with_early_termination(self, dtype):
+        # 5x4 tiles (the last column and row partial, an odd height for the 2-row pixel groups),
+        # opaque splats: most pixels finish early, so the forward pass skips finished groups and the
+        # backward pass starts at each pixel's last splat and visits only the groups the forward
+        # pass listed for each (splat, tile).
+        width, height = 70, 51
+        viewmat, K = camera(width, height, dtype)
+        means, quats, scales, opacities, colors = random_scene(400, seed=21, dtype=torch.float64, spread=0.8)
+        scales, opacities = scales * 3.0, 0.6 + 0.4 * opacities
+        scene = [t.to(dtype) for t in (means, quats, scales, opacities, colors)]
+        expected = assert_matches_reference("cpu", scene, viewmat, K, width, height)
+        assert (expected["alpha"] > 0.999).float().mean() > 0.5  # most pixels are (nearly) opaque
+
+    @pytest.mark.parametrize("backend", BACKENDS)
+    @pytest.mark.parametrize("count", [0, 1])
+    def test_cardinality_tiny_counts(self, backend, count):
+        viewmat, K = camera(32, 24, torch.float64)
+        scene = random_scene(count, seed=5, dtype=torch.float64, spread=0.2)
+        assert_matches_reference(backend, scene, viewmat, K, 32, 24)
+
+    def test_cpu_kernel_is_deterministic_across_thread_counts(self):
+        viewmat, K = camera(48, 40, torch.float32)
+        scene = random_scene(400, seed=9, dtype=torch.float32)
+        threads = torch.get_num_threads()
+        try:
+            torch.set_num_threads(1)
+            single = render_with_grads("cpu", scene, viewmat, K, 48, 40)
+            torch.set_num_threads(2)
+            double = render_with_grads("cpu", scene, viewmat, K, 48, 40)
+        finally:
+            torch.set_num_threads(threads)
+        for name in ("rgb", "depth", "alpha"):
+            assert torch.equal(single[name], double[name]), name  # per-pixel work never depends on threads
+        # Gradients add up one partial sum per thread: float32 rounding of another summation order.
+        for name in ("grad_means", "grad_opacities"):
+            torch.testing.assert_close(single[name], double[name], rtol=1e-5, atol=1e-5)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-@pytest.mark.parametrize("count", [0, 1])
-def test_tiny_counts_match_reference(backend, count):
-    viewmat, K = camera(32, 24, torch.float64)
-    scene = random_scene(count, seed=5, dtype=torch.float64, spread=0.2)
-    assert_matches_reference(backend, scene, viewmat, K, 32, 24)
+class TestCompositeCPU(BaseTester):
+    """``composite_cpu`` with a keep mask against ``composite_reference`` on the kept splats."""
 
+    @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+    def test_correctness_keep_mask(self, dtype):
+        # composite_cpu(..., keep) composites only the kept splats (rasterize passes the in-front
+        # mask this way) and gives the others zero gradients.
+        from recondreamer.splat.cpu_kernel import composite_cpu
+        from recondreamer.splat.reference import composite_reference
 
-def test_cpu_kernel_is_deterministic_across_thread_counts():
-    viewmat, K = camera(48, 40, torch.float32)
-    scene = random_scene(400, seed=9, dtype=torch.float32)
-    threads = torch.get_num_threads()
-    try:
-        torch.set_num_threads(1)
-        single = render_with_grads("cpu", scene, viewmat, K, 48, 40)
-        torch.set_num_threads(2)
-        double = render_with_grads("cpu", scene, viewmat, K, 48, 40)
-    finally:
-        torch.set_num_threads(threads)
-    for name in ("rgb", "depth", "alpha"):
-        assert torch.equal(single[name], double[name]), name  # per-pixel work never depends on threads
-    for name in ("grad_means", "grad_opacities"):
-        torch.testing.assert_close(single[name], double[name], rtol=1e-5, atol=1e-5)
+        width, height = 40, 30
+        g = torch.Generator().manual_seed(4)
+        count = 120
+        axes = torch.randn(count, 2, 2, generator=g, dtype=torch.float64) * 2.0
+        covariances = axes @ axes.transpose(1, 2) + 0.3 * torch.eye(2, dtype=torch.float64)
+        inverse = torch.linalg.inv(covariances)
+        fields = [
+            torch.rand(count, 2, generator=g, dtype=torch.float64) * torch.tensor([width, height], dtype=torch.float64),
+            torch.stack([inverse[:, 0, 0], inverse[:, 0, 1], inverse[:, 1, 1]], dim=-1),
+            torch.rand(count, 3, generator=g, dtype=torch.float64),
+            torch.rand(count, generator=g, dtype=torch.float64),
+            torch.rand(count, generator=g, dtype=torch.float64) * 10 + 1,
+        ]
+        fields = [t.to(dtype) for t in fields]
+        keep = torch.rand(count, generator=g) < 0.7
+        weights = torch.randn(height, width, 5, generator=g, dtype=torch.float64).to(dtype)
 
+        def loss(rgb, depth, alpha):
+            rgb_term = (rgb * weights[..., :3]).sum()
+            return rgb_term + (depth * weights[..., 3]).sum() * 0.1 + (alpha * weights[..., 4]).sum()
 
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_dense_multi_tile_scene_with_early_termination_matches_reference(dtype):
-    # 5x4 tiles (the last column and row partial, an odd height for the 2-row pixel groups),
-    # opaque splats: most pixels finish early, so the forward pass skips finished groups and the
-    # backward pass starts at each pixel's last splat and visits only the groups the forward
-    # pass listed for each (splat, tile).
-    width, height = 70, 51
-    viewmat, K = camera(width, height, dtype)
-    means, quats, scales, opacities, colors = random_scene(400, seed=21, dtype=torch.float64, spread=0.8)
-    scales, opacities = scales * 3.0, 0.6 + 0.4 * opacities
-    scene = [t.to(dtype) for t in (means, quats, scales, opacities, colors)]
-    expected = assert_matches_reference("cpu", scene, viewmat, K, width, height)
-    assert (expected["alpha"] > 0.999).float().mean() > 0.5  # most pixels are (nearly) opaque
-
-
-@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_composite_keep_mask_matches_reference_on_kept_splats(dtype):
-    # composite_cpu(..., keep) composites only the kept splats (rasterize passes the in-front
-    # mask this way) and gives the others zero gradients.
-    from recondreamer.splat.cpu_kernel import composite_cpu
-    from recondreamer.splat.reference import composite_reference
-
-    width, height = 40, 30
-    g = torch.Generator().manual_seed(4)
-    count = 120
-    axes = torch.randn(count, 2, 2, generator=g, dtype=torch.float64) * 2.0
-    covariances = axes @ axes.transpose(1, 2) + 0.3 * torch.eye(2, dtype=torch.float64)
-    inverse = torch.linalg.inv(covariances)
-    fields = [
-        torch.rand(count, 2, generator=g, dtype=torch.float64) * torch.tensor([width, height], dtype=torch.float64),
-        torch.stack([inverse[:, 0, 0], inverse[:, 0, 1], inverse[:, 1, 1]], dim=-1),
-        torch.rand(count, 3, generator=g, dtype=torch.float64),
-        torch.rand(count, generator=g, dtype=torch.float64),
-        torch.rand(count, generator=g, dtype=torch.float64) * 10 + 1,
-    ]
-    fields = [t.to(dtype) for t in fields]
-    keep = torch.rand(count, generator=g) < 0.7
-    weights = torch.randn(height, width, 5, generator=g, dtype=torch.float64).to(dtype)
-
-    def loss(rgb, depth, alpha):
-        return (rgb * weights[..., :3]).sum() + (depth * weights[..., 3]).sum() * 0.1 + (alpha * weights[..., 4]).sum()
-
-    actual_inputs = [t.clone().requires_grad_() for t in fields]
-    actual = composite_cpu(*actual_inputs, width, height, keep)
-    loss(*actual).backward()
-    expected_inputs = [t.clone().requires_grad_() for t in fields]
-    expected = composite_reference(*(t[keep] for t in expected_inputs), width, height)
-    loss(*expected).backward()
-    tolerance = TOLERANCE[dtype]
-    for name, got, want in zip(("rgb", "depth", "alpha"), actual, expected):
-        error = (got - want).abs().max().item()
-        assert error <= tolerance * (1 + want.abs().max().item()), name
-    for index, (got, want) in enumerate(zip(actual_inputs, expected_inputs)):
-        error = (got.grad - want.grad).abs().max().item()
-        assert error <= tolerance * (1 + want.grad.abs().max().item()), f"gradient of field {index}"
-        assert torch.all(got.grad[~keep] == 0), f"gradient of field {index} outside keep"
+        actual_inputs = [t.clone().requires_grad_() for t in fields]
+        actual = composite_cpu(*actual_inputs, width, height, keep)
+        loss(*actual).backward()
+        expected_inputs = [t.clone().requires_grad_() for t in fields]
+        expected = composite_reference(*(t[keep] for t in expected_inputs), width, height)
+        loss(*expected).backward()
+        tolerance = SCALED_TOLERANCE[dtype]
+        for name, got, want in zip(("rgb", "depth", "alpha"), actual, expected):
+            assert_scaled_close(got, want, tolerance, name)
+        for index, (got, want) in enumerate(zip(actual_inputs, expected_inputs)):
+            assert_scaled_close(got.grad, want.grad, tolerance, f"gradient of field {index}")
+            assert torch.all(got.grad[~keep] == 0), f"gradient of field {index} outside keep"
