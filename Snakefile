@@ -29,6 +29,9 @@ except RecondreamerError as error:
     raise WorkflowError(str(error)) from None
 
 
+# The repository, for workflow/envs/recondreamer.yaml (snakemake --use-conda installs this package from it).
+os.environ.setdefault("RECONDREAMER_ROOT", workflow.basedir)
+
 report: "workflow/report/workflow.rst"
 
 

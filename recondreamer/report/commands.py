@@ -1,4 +1,5 @@
-"""Sub-commands of the report stage: ``make-tables``, ``make-plots``, ``benchmark-summary``."""
+"""Sub-commands of the report stage: ``make-tables``, ``findings``, ``make-plots``, ``pdus-figure``,
+``novel-view-clip``, ``config-page``, ``benchmark-summary``."""
 
 from __future__ import annotations
 
@@ -63,6 +64,30 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, help="image file to write (PNG)")
     p.add_argument("--frame", type=int, default=None, help="frame index shown (default: the middle frame of each update)")
     p.set_defaults(func=run_pdus_figure)
+
+    p = subparsers.add_parser(
+        "novel-view-clip",
+        help="animated GIF (and an HTML page showing it) of renders side by side with the true novel view",
+        description="Read each --panel frame folder (frames 0..T-1 of the scene's size) and, when the scene has them, the "
+        "true novel views along --trajectory, and write OUT (GIF: the panels two a row, each under its label) and OUT's .html "
+        "sibling (the GIF embedded, for the Snakemake report).",
+    )
+    p.add_argument("--scene", required=True, type=Path, help="scene directory (frame count and size; true novel views)")
+    p.add_argument("--trajectory", required=True, help="trajectory the panels were rendered along (e.g. shift@6)")
+    p.add_argument("--panel", required=True, action="append", dest="panels", metavar="LABEL=DIR", help="a panel: its label and frame folder (repeat, in reading order; two panels a row)")
+    p.add_argument("--out", required=True, type=Path, help="GIF to write (e.g. results/clips/synth-01.gif)")
+    p.add_argument("--fps", type=float, default=6.0, help="frames per second (default 6)")
+    p.add_argument("--min-panel-width", type=int, default=240, help="panels are enlarged by a whole factor to at least this width in pixels (default 240)")
+    p.set_defaults(func=run_novel_view_clip)
+
+    p = subparsers.add_parser(
+        "config-page",
+        help="the run's configuration (run_config.yaml) as an HTML page for the report",
+        description="Write OUT: the YAML file, escaped, on an HTML page.",
+    )
+    p.add_argument("config", type=Path, help="the workflow's run_config.yaml")
+    p.add_argument("--out", required=True, type=Path, help="HTML file to write")
+    p.set_defaults(func=run_config_page)
 
     p = subparsers.add_parser(
         "benchmark-summary",
@@ -137,6 +162,21 @@ def run_pdus_figure(args: argparse.Namespace) -> int:
 
     pdus_progression(args.run, args.out, args.frame)
     log.info("wrote %s", args.out)
+    return 0
+
+
+def run_novel_view_clip(args: argparse.Namespace) -> int:
+    from recondreamer.report.clips import novel_view_clip, parse_panel
+
+    gif, page = novel_view_clip(args.scene, args.trajectory, [parse_panel(text) for text in args.panels], args.out, args.fps, args.min_panel_width)
+    log.info("wrote %s and %s", gif, page)
+    return 0
+
+
+def run_config_page(args: argparse.Namespace) -> int:
+    from recondreamer.report.config_page import config_page
+
+    log.info("wrote %s", config_page(args.config, args.out))
     return 0
 
 

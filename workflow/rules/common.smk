@@ -3,6 +3,7 @@
 # builder reads them with.
 
 import os
+import shlex
 import sys
 
 from snakemake.exceptions import WorkflowError
@@ -262,6 +263,7 @@ def final_outputs():
     outputs = [results("tables", f"table{n}.{suffix}") for n in TABLES for suffix in ("csv", "md", "tex", "html")]
     outputs += plot_files()
     outputs += [results("findings.md"), results("findings.html"), results("study"), results("benchmark_summary.html")]
+    outputs += clip_files() + [results("run_config.html")]
     return outputs
 
 
@@ -342,3 +344,23 @@ def figure(name, caption, subcategory, labels):
 
 def qualitative_methods():
     return [PLAN.baseline(PLAN.ablation_backbone), PLAN.dd4d(config["report"]["dd4d_backbone"]), PLAN.preference_method()]
+
+
+# The novel-view clips: the first report.clip_segments segments along the qualitative trajectory.
+CLIP_SEGMENTS = SEGMENTS[: config["report"]["clip_segments"]]
+
+
+def clip_files():
+    return [results("clips", f"{s}.{suffix}") for s in CLIP_SEGMENTS for suffix in ("gif", "html")]
+
+
+def qualitative_render(segment, method):
+    """The render folder of ``method`` along the qualitative trajectory (segment may be a wildcard)."""
+    return str(render_dir(RESULTS, segment, method.run_id, config["report"]["qualitative_trajectory"]))
+
+
+def clip_panel_arguments(degraded, restored, recondreamer):
+    """'--panel LABEL=DIR' for each folder of a clip, left to right, quoted for the shell (labels have spaces)."""
+    baseline = PLAN.baseline(PLAN.ablation_backbone)
+    panels = [(f"degraded ({baseline.label})", degraded), ("restored (DriveRestorer)", restored), (f"ReconDreamer ({baseline.label})", recondreamer)]
+    return " ".join(f"--panel {shlex.quote(f'{label}={path}')}" for label, path in panels)

@@ -19,6 +19,8 @@ rule train_eval_models:
         min_lidar_points=config["evaluation"]["min_lidar_points"],
     threads: config["threads"]["evaluate"]
     priority: FEEDER_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_eval_models", "all"),
     benchmark:

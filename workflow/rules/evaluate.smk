@@ -27,6 +27,8 @@ rule evaluate:
         min_lidar_points=config["evaluation"]["min_lidar_points"],
         score_threshold=config["evaluation"]["score_threshold"],
     threads: config["threads"]["evaluate"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("evaluate", "{segment}/{run}"),
     benchmark:
@@ -49,6 +51,8 @@ rule judge:
             for s, t, a, versus, b in preference_pairs()
         ),
         metric=config["preference"]["metric"],
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("judge", "all"),
     benchmark:
@@ -71,6 +75,8 @@ rule study_page:
         seed=config["preference"]["study_seed"],
         fps=config["preference"]["study_fps"],
         media=config["preference"]["study_format"],
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("study_page", "all"),
     benchmark:
@@ -86,6 +92,8 @@ rule study_ingest:
         study=results("study"),
     output:
         results("preference", "people.json"),
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("study_ingest", "all"),
     benchmark:

@@ -18,6 +18,8 @@ rule synth_gate_scene:
     params:
         seed=lambda wildcards: FOUNDATION["gate_seeds"][GATE_SCENES.index(wildcards.gate_scene)],
         preset=config["synthetic"]["corpus"]["preset"],
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("synth_gate_scene", "{gate_scene}"),
     benchmark:
@@ -36,6 +38,8 @@ rule train_gate_recon:
         run=lambda wildcards, output: parent(output[0]),
         options=RECON_OPTIONS,
     threads: config["threads"]["recon"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_gate_recon", "{gate_scene}"),
     benchmark:
@@ -58,6 +62,8 @@ rule make_gate_pairs:
         stages=config["restorer"]["pair_stages"],
         trajectories=" ".join(GATE_TRAJECTORIES),
     threads: config["threads"]["restorer"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("make_gate_pairs", "{gate_scene}"),
     benchmark:
@@ -82,6 +88,8 @@ rule foundation_gates:
         gate_seeds=" ".join(str(seed) for seed in FOUNDATION["gate_seeds"]),
         corpus_seeds=f"{config['synthetic']['corpus']['first_seed']} {config['synthetic']['corpus']['first_seed'] + config['synthetic']['corpus']['num_scenes'] - 1}",
     threads: config["threads"]["restorer"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("foundation_gates", "all"),
     benchmark:
@@ -102,6 +110,8 @@ rule publish_weights:
         files=" ".join(f"{name}={path}" for name, path in published_files().items()),
         out=lambda wildcards, output: parent(output[0]),
         preset=config["synthetic"]["corpus"]["preset"],
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("publish_weights", "all"),
     benchmark:

@@ -19,6 +19,8 @@ rule train_autoencoder:
         seed=config["pretrain"]["seed"],
     threads: config["threads"]["pretrain"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_autoencoder", "all"),
     benchmark:
@@ -43,6 +45,8 @@ rule pretrain_world_model:
         + PRETRAIN_DEVICE,
     threads: config["threads"]["pretrain"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("pretrain_world_model", "{arch}"),
     benchmark:

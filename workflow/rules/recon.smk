@@ -17,6 +17,8 @@ rule train_baseline:
         options=RECON_OPTIONS,
     threads: config["threads"]["recon"]
     priority: FEEDER_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_baseline", "{segment}/{backbone}"),
     benchmark:
@@ -36,6 +38,8 @@ rule train_corpus_recon:
         options=RECON_OPTIONS,
     threads: config["threads"]["recon"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_corpus_recon", "{corpus_scene}/{backbone}"),
     benchmark:

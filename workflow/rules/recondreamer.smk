@@ -25,6 +25,8 @@ rule train_recondreamer:
         options=RECON_OPTIONS,
         pdus=RESTORER_PDUS_OPTIONS,
     threads: config["threads"]["recon"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_recondreamer", "{segment}/{backbone}-{restorer}-stride{stride}"),
     benchmark:
@@ -48,6 +50,8 @@ rule train_recondreamer_truth:
         options=RECON_OPTIONS,
         pdus=PDUS_OPTIONS,
     threads: config["threads"]["recon"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_recondreamer_truth", "{segment}/{backbone}-stride{stride}"),
     benchmark:
@@ -69,8 +73,10 @@ rule generate_dd4d:
         directory(results("dd4d_generated", "{segment}", "{trajectory}")),
     params:
         seed=lambda wildcards: config["recon"]["seed"] + DD4D_TRAJECTORIES.index(wildcards.trajectory),
-        steps=option("--steps", config["methods"]["dd4d_generate_steps"]) + RESTORER_DEVICE,
+        steps=option("--sample-steps", config["methods"]["dd4d_generate_steps"]) + RESTORER_DEVICE,
     threads: config["threads"]["restorer"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("generate_dd4d", "{segment}/{trajectory}"),
     benchmark:
@@ -92,6 +98,8 @@ rule train_dd4d:
         trajectories=",".join(DD4D_TRAJECTORIES),
         options=RECON_OPTIONS,
     threads: config["threads"]["recon"]
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_dd4d", "{segment}/{backbone}"),
     benchmark:

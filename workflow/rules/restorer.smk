@@ -14,6 +14,8 @@ rule make_pairs_segment:
         stages=config["restorer"]["pair_stages"],
     threads: config["threads"]["restorer"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("make_pairs_segment", "{segment}"),
     benchmark:
@@ -34,6 +36,8 @@ rule make_pairs_corpus:
         stages=config["restorer"]["pair_stages"],
     threads: config["threads"]["restorer"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("make_pairs_corpus", "{corpus_scene}"),
     benchmark:
@@ -68,6 +72,8 @@ rule train_restorer:
         mask=lambda wildcards: option("--mask-probability", config["restorer"]["mask_probability"]) if wildcards.restorer == "dd2_mask" else "",
     threads: config["threads"]["restorer"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_restorer", "{restorer}"),
     benchmark:
@@ -94,6 +100,8 @@ rule train_refiner:
         + RESTORER_DEVICE,
     threads: config["threads"]["restorer"]
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("train_refiner", "{restorer}"),
     benchmark:

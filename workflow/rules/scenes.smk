@@ -9,6 +9,8 @@ if config["source"] == "synthetic":
             seed=lambda wildcards: config["synthetic"]["segments"][wildcards.segment],
             preset=config["synthetic"]["preset"],
         priority: RESTORER_PATH_PRIORITY
+        conda:
+            "../envs/recondreamer.yaml"
         log:
             log_file("synth_segment", "{segment}"),
         benchmark:
@@ -28,6 +30,8 @@ else:
             start=lambda wildcards: config["waymo"]["segments"][wildcards.segment].get("start", 0),
             end=lambda wildcards: option("--end", config["waymo"]["segments"][wildcards.segment].get("end")),
             camera=config["waymo"]["camera"],
+        conda:
+            "../envs/recondreamer.yaml"
         log:
             log_file("convert_waymo", "{segment}"),
         benchmark:
@@ -44,6 +48,8 @@ rule synth_corpus_scene:
         seed=lambda wildcards: config["synthetic"]["corpus"]["first_seed"] + CORPUS_SCENES.index(wildcards.corpus_scene),
         preset=config["synthetic"]["corpus"]["preset"],
     priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
     log:
         log_file("synth_corpus_scene", "{corpus_scene}"),
     benchmark:
