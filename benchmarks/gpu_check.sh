@@ -142,7 +142,7 @@ if wants restorer; then
   for setting in "$DEVICE 1" "$DEVICE 10" "cpu 1"; do
     read -r device steps <<< "$setting"
     [ -d "$DEV/restored/$device-$steps" ] || timed "$DEV/logs/restore_$device-$steps.log" $RC restore --restorer "$DEV/models/restorer.pt" \
-      --scene "$SEGMENT" --renders "$DEV/renders/shift@3" --trajectory shift@3 --steps "$steps" --device "$device" --threads 1 \
+      --scene "$SEGMENT" --renders "$DEV/renders/shift@3" --trajectory shift@3 --sample-steps "$steps" --device "$device" --threads 1 \
       --out "$DEV/restored/$device-$steps"
   done
   python3 - "$DEV" "$DEVICE" <<'EOF'

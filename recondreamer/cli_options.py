@@ -3,16 +3,18 @@
 A command names the fields it exposes; each becomes ``--field-name`` (with an optional prefix),
 typed from the field's annotation (``bool`` fields take ``on``/``off``, tuples take several
 values), its help the comment written beside or above the field in the config class, followed
-by the default the command uses. Options default to ``None``: ``apply_options`` replaces only the
-fields given on the command line, then runs the config's own ``check()`` (if it has one), whose
-``ConfigValueError`` comes back naming the flag. So a field, its meaning, its default and its
-valid range each have one home: the config class.
+by the default the command uses (or "required" for the fields a command cannot default). Options
+default to ``None``: ``apply_options`` replaces only the fields given on the command line, then runs
+the config's own ``check()`` (if it has one), whose ``ConfigValueError`` comes back naming the flag;
+``naming_flags`` does the same for a config a command builds itself. So a field, its meaning, its
+default and its valid range each have one home: the config class.
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import contextlib
 import dataclasses
 import functools
 import inspect
@@ -21,7 +23,7 @@ import textwrap
 import tokenize
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
 from recondreamer.errors import ConfigValueError, RecondreamerError
@@ -79,12 +81,15 @@ def add_config_options(
     defaults: Any = None,  # an instance of cls whose values the help shows (default: cls()), or {field: text, "*": text}
     prefix: str = "",
     title: str | None = None,
+    required: Sequence[str] = (),  # fields of names the command line must give (help says "required", no default)
 ) -> None:
     """One ``--[prefix]field-name`` option per field in ``names`` of the dataclass ``cls``."""
     fields = {field.name: field for field in dataclasses.fields(cls)}
     unknown = [name for name in names if name not in fields]
     if unknown:
         raise ValueError(f"{cls.__name__} has no field(s) {unknown}")
+    if not set(required) <= set(names):
+        raise ValueError(f"required field(s) {sorted(set(required) - set(names))} are not among {list(names)}")
     shown = cls() if defaults is None else defaults
     comments = field_comments(cls)
     group = parser.add_argument_group(title or f"{cls.__name__} options")
@@ -93,9 +98,15 @@ def add_config_options(
         if typing.get_origin(hint) in (typing.Union, types.UnionType):  # X | None: the option takes an X
             hint = next(arg for arg in typing.get_args(hint) if arg is not type(None))
         origin = typing.get_origin(hint)
-        default = (shown.get(name) or shown["*"]) if isinstance(shown, Mapping) else _show(getattr(shown, name))
-        help_text = f"{comments.get(name) or name.replace('_', ' ')} (default: {default})"
-        kwargs: dict[str, Any] = {"default": None, "help": help_text.replace("%", "%%"), "dest": prefix.replace("-", "_") + name}
+        if name in required:
+            shown_default = "required"
+        elif isinstance(shown, Mapping):
+            shown_default = f"default: {shown.get(name) or shown['*']}"
+        else:
+            shown_default = f"default: {_show(getattr(shown, name))}"
+        help_text = f"{comments.get(name) or name.replace('_', ' ')} ({shown_default})"
+        kwargs: dict[str, Any] = {"default": None, "help": help_text.replace("%", "%%"), "dest": prefix.replace("-", "_") + name,
+                                  "required": name in required}
         if hint is bool:
             kwargs.update(type=_on_off, metavar="{on,off}")
         elif origin is tuple:
@@ -119,12 +130,19 @@ def apply_options(args: argparse.Namespace, config: Any, names: Sequence[str], p
     return config
 
 
+@contextlib.contextmanager
+def naming_flags(prefix: str = "") -> Iterator[None]:
+    """A ConfigValueError raised inside comes back as a RecondreamerError naming the command-line flag."""
+    try:
+        yield
+    except ConfigValueError as error:
+        raise RecondreamerError(f"{flag(error.field, prefix)} {error.message}") from None
+
+
 def check_config(config: Any, prefix: str = "") -> None:
     """Run ``config.check()``; a ConfigValueError comes back naming the command-line flag."""
     check = getattr(config, "check", None)
     if check is None:
         return
-    try:
+    with naming_flags(prefix):
         check()
-    except ConfigValueError as error:
-        raise RecondreamerError(f"{flag(error.field, prefix)} {error.message}") from None

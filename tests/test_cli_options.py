@@ -7,9 +7,10 @@ from dataclasses import dataclass
 
 import pytest
 
-from recondreamer.cli import build_parser
+from recondreamer.cli import build_parser, main
 from recondreamer.cli_options import add_config_options, apply_options, field_comments
 from recondreamer.errors import ConfigValueError, RecondreamerError
+from recondreamer.methods.pdus import PdusSchedule
 
 
 @dataclass(frozen=True)
@@ -89,7 +90,8 @@ class TestApplyOptions:
 
 
 class TestGeneratedCommands:
-    @pytest.mark.parametrize("command", ["train-autoencoder", "pretrain-world-model", "train-restorer", "train-refiner", "train-eval-models"])
+    @pytest.mark.parametrize("command", ["train-autoencoder", "pretrain-world-model", "train-restorer", "train-refiner", "train-eval-models",
+                                         "restore", "dd4d-generate"])
     def test_every_generated_option_shows_a_description_and_its_default(self, command):
         subparsers = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
         parser = subparsers.choices[command]
@@ -98,3 +100,83 @@ class TestGeneratedCommands:
         assert generated
         for action in generated:
             assert "(default: " in action.help and not action.help.startswith(action.dest.replace("_", " ") + " ("), action.option_strings
+
+
+class TestRequiredOptions:
+    def test_required_option_is_refused_when_missing_and_says_so_in_its_help(self, capsys):
+        parser = argparse.ArgumentParser()
+        add_config_options(parser, Example, ("steps", "rate"), required=("steps",))
+        assert parser.parse_args(["--steps", "2"]).steps == 2
+        with pytest.raises(SystemExit):
+            parser.parse_args(["--rate", "0.1"])
+        assert "the following arguments are required: --steps" in capsys.readouterr().err
+        text = parser.format_help()
+        assert "training steps (required)" in text and "(default: 10)" not in text
+
+    def test_required_must_be_one_of_the_options(self):
+        with pytest.raises(ValueError, match="required"):
+            add_config_options(argparse.ArgumentParser(), Example, ("rate",), required=("steps",))
+
+
+class TestTrainRecondreamerPdusOptions:
+    """--stride, --update-every and --max-offset come from PdusSchedule: help from its field comments,
+    range errors from its check(), named by flag before any scene is read."""
+
+    def test_help_shows_each_flag_with_its_field_comment_and_default(self, capsys):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train-recondreamer", "--help"])
+        assert exit_info.value.code == 0
+        text = " ".join(capsys.readouterr().out.split())  # undo argparse's line wrapping
+        comments = field_comments(PdusSchedule)
+        assert comments["stride"] and comments["update_every"] and comments["max_offset"]
+        assert f"--stride STRIDE {comments['stride']} (required)" in text
+        assert f"--update-every UPDATE_EVERY {comments['update_every']} (default: iterations / 5, i.e. four updates)" in text
+        assert f"--max-offset MAX_OFFSET {comments['max_offset']} (default: 6.0)" in text
+
+    @pytest.mark.parametrize("options, message", [
+        (["--stride", "0"], "--stride must be a positive number of metres, got 0.0"),
+        (["--stride", "nan"], "--stride must be a positive number of metres, got nan"),
+        (["--stride", "1.5", "--update-every", "0"], "--update-every must be at least 1 step, got 0"),
+        (["--stride", "1.5", "--max-offset", "-1"], "--max-offset must be a positive number of metres, got -1.0"),
+    ])
+    def test_a_value_out_of_range_is_an_error_naming_the_flag_before_the_scene_is_read(self, options, message, capsys, tmp_path):
+        missing = tmp_path / "missing"  # loading this scene would fail with another message
+        argv = ["train-recondreamer", "--scene", str(missing), "--model", "street", "--preset", "quick",
+                "--restorer", "truth", "--out", str(tmp_path / "out"), *options]
+        assert main(argv) == 1
+        error = capsys.readouterr().err
+        assert error.strip() == f"recondreamer train-recondreamer: error: {message}"
+        assert not (tmp_path / "out").exists()
+
+    def test_a_missing_stride_is_refused_by_argparse(self, capsys, tmp_path):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["train-recondreamer", "--scene", str(tmp_path), "--model", "street", "--restorer", "truth",
+                  "--out", str(tmp_path / "out")])
+        assert exit_info.value.code == 2
+        assert "the following arguments are required: --stride" in capsys.readouterr().err
+
+    def test_given_flags_reach_the_schedule_and_update_every_defaults_to_a_fifth(self, monkeypatch, tmp_path):
+        import recondreamer.methods.loop as loop
+        import recondreamer.scene as scene_module
+
+        schedules = []
+        monkeypatch.setattr(scene_module, "load_scene", lambda path: object())
+
+        class Stop(Exception):
+            pass
+
+        def capture(scene, config, out, restorer, schedule, *args, **kwargs):
+            schedules.append((config.iterations, schedule))
+            raise Stop
+
+        monkeypatch.setattr(loop, "train_recondreamer", capture)
+        monkeypatch.setattr("recondreamer.sources.synthetic.truth.TrueViewRenderer", lambda scene: object())
+        common = ["train-recondreamer", "--scene", str(tmp_path), "--model", "street", "--restorer", "truth",
+                  "--out", str(tmp_path / "out"), "--iterations", "100"]
+        for options in (["--stride", "1.5"], ["--stride", "3", "--update-every", "7", "--max-offset", "4.5"]):
+            with pytest.raises(Stop):
+                main([*common, *options])
+        assert schedules == [
+            (100, PdusSchedule(stride=1.5, update_every=20, iterations=100, max_offset=6.0)),
+            (100, PdusSchedule(stride=3.0, update_every=7, iterations=100, max_offset=4.5)),
+        ]

@@ -254,7 +254,7 @@ def test_commands_train_and_sample_on_cuda_and_their_checkpoints_load_on_the_cpu
     difference = np.abs(read_clip(tmp_path / "on_cuda").astype(np.int16) - read_clip(tmp_path / "on_cpu").astype(np.int16))
     assert difference.max() <= 3 and difference.mean() < 0.1
     assert main(["dd4d-generate", "--world-model", str(tmp_path / "wm.pt"), "--scene", str(scene.path), "--trajectory",
-                 "shift@3", "--out", str(tmp_path / "dd4d"), "--steps", "2", *cuda]) == 0
+                 "shift@3", "--out", str(tmp_path / "dd4d"), "--sample-steps", "2", *cuda]) == 0
     assert read_clip(tmp_path / "dd4d").shape == gt.shape
 
 

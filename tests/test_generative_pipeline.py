@@ -21,7 +21,7 @@ def _blur(frames: np.ndarray) -> np.ndarray:  # (T,H,W,3) uint8 -> box-blurred c
 
 
 @pytest.mark.slow
-def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
+def test_commands_end_to_end_on_a_tiny_scene(tmp_path, capsys):
     from recondreamer.generative.data import scene_sky_masks, scene_structure, scene_vanishing_points, structure_channel_names
     from recondreamer.scene import load_scene, write_scene
     from recondreamer.sources.synthetic import generate_segment
@@ -69,14 +69,18 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path):
 
     np.save(tmp_path / "renders.npy", _blur(gt))
     assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--renders", str(tmp_path / "renders.npy"),
-                 "--trajectory", "shift@3", "--out", str(tmp_path / "restored"), "--steps", "2", "--samples", "1", *common]) == 0
+                 "--trajectory", "shift@3", "--out", str(tmp_path / "restored"), "--sample-steps", "2", "--samples", "1", *common]) == 0
     assert len(list((tmp_path / "restored").glob("*.png"))) == scene.num_frames
     assert main(["dd4d-generate", "--world-model", str(tmp_path / "wm.pt"), "--scene", str(scene.path), "--trajectory", "lane_change",
-                 "--out", str(tmp_path / "dd4d"), "--steps", "2", *common]) == 0
+                 "--out", str(tmp_path / "dd4d"), "--sample-steps", "2", *common]) == 0
     assert len(list((tmp_path / "dd4d").glob("*.png"))) == scene.num_frames
     # Wrong kinds and mismatched renders are one-line errors (exit code 1).
     assert main(["dd4d-generate", "--world-model", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--trajectory", "shift@3",
                  "--out", str(tmp_path / "x")]) == 1
+    # Sampling flags are RestoreConfig's, checked against the checkpoint's window.
+    assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--renders", str(tmp_path / "renders.npy"),
+                 "--trajectory", "shift@3", "--out", str(tmp_path / "z"), "--overlap", "99"]) == 1
+    assert "--overlap must be smaller than the window" in capsys.readouterr().err and not (tmp_path / "z").exists()
     np.save(tmp_path / "short.npy", gt[:3])
     assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--renders", str(tmp_path / "short.npy"),
                  "--trajectory", "shift@3", "--out", str(tmp_path / "y")]) == 1

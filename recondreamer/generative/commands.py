@@ -27,6 +27,9 @@ TRAIN_OPTIONS = ("steps", "batch_size", "window", "crop", "learning_rate", "time
 RESTORER_TRAIN_OPTIONS = TRAIN_OPTIONS + ("pixel_loss_weight",)
 RESTORE_OPTIONS = ("sample_steps", "strength", "samples", "residual_decoding")
 MASK_OPTIONS = ("probability",)
+# Sampling flags of restore and dd4d-generate, generated from RestoreConfig over the checkpoint's values.
+GENERATE_OPTIONS = ("sample_steps", "overlap", "seed")
+RESTORE_CLIP_OPTIONS = GENERATE_OPTIONS + ("strength", "samples")
 REFINER_OPTIONS = ("steps", "batch_size", "crop", "width", "temporal_neighbours", "learning_rate", "ema_decay", "seed",
                    "use_structure", "output_norm", "max_correction")
 
@@ -121,9 +124,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--renders", required=True, help="rendered clip: folder of frames (or with a sub-folder named after the trajectory) or a .npy")
     p.add_argument("--trajectory", required=True, help="trajectory the renders were made along (original, shift@Y, lane_change, file:PATH)")
     p.add_argument("--out", required=True, help="output folder of restored frames {t:03d}.png")
-    _add_sampling_options(p)
-    p.add_argument("--strength", type=float, default=None, help="1 = start from noise; < 1 starts from the noised render (default from the checkpoint)")
-    p.add_argument("--samples", type=int, default=None, help="noise draws averaged per window (default from the checkpoint)")
+    _add_sampling_options(p, RESTORE_CLIP_OPTIONS)
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_restore)
@@ -133,7 +134,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", required=True, help="scene directory (original frames as reference, boxes and map)")
     p.add_argument("--trajectory", required=True, help="novel trajectory (shift@Y, lane_change, file:PATH)")
     p.add_argument("--out", required=True, help="output folder of generated frames {t:03d}.png")
-    _add_sampling_options(p)
+    _add_sampling_options(p, GENERATE_OPTIONS)
     _add_threads_option(p)
     _add_device_option(p)
     p.set_defaults(func=run_dd4d_generate)
@@ -167,10 +168,8 @@ def _device(args: argparse.Namespace):
     return resolve_device(args.device, "--device")
 
 
-def _add_sampling_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--steps", type=int, default=None, help="DDIM steps (default from the checkpoint)")
-    p.add_argument("--overlap", type=int, default=None, help="frames shared by consecutive windows (default from the checkpoint)")
-    p.add_argument("--seed", type=int, default=None, help="sampling seed (default from the checkpoint)")
+def _add_sampling_options(p: argparse.ArgumentParser, names: tuple[str, ...]) -> None:
+    add_config_options(p, RestoreConfig, names, defaults={"*": "the checkpoint's"}, title="sampling (RestoreConfig)")
 
 
 def run_train_autoencoder(args: argparse.Namespace) -> int:
@@ -311,8 +310,10 @@ def run_restore(args: argparse.Namespace) -> int:
     if renders.shape != reference.shape:
         raise RecondreamerError(f"{args.renders}: renders {renders.shape} do not match the scene's frames {reference.shape} (T,H,W,3)")
     start = time.perf_counter()
+    sampling = apply_options(args, restorer.restore_config, RESTORE_CLIP_OPTIONS)
     restored = restore_clip(
-        restorer, renders, structure, num_steps=args.steps, overlap=args.overlap, strength=args.strength, seed=args.seed, samples=args.samples
+        restorer, renders, structure, num_steps=sampling.sample_steps, overlap=sampling.overlap, strength=sampling.strength,
+        seed=sampling.seed, samples=sampling.samples,
     )
     seconds = time.perf_counter() - start
     LOG.info("restored %d frames with %s on %s in %.1f s", len(restored), restorer.arch, restorer.device, seconds)
@@ -334,7 +335,12 @@ def run_dd4d_generate(args: argparse.Namespace) -> int:
         raise RecondreamerError(f"{args.world_model}: DriveDreamer4D generation needs the dd2 world model, got {world.arch!r}")
     scene, reference, structure = _scene_conditions(args.scene, args.trajectory, True)
     start = time.perf_counter()
-    generated = generate_clip(world, reference, structure, num_steps=args.steps, overlap=args.overlap, seed=args.seed or 0)
+    # A world model samples with its diffusion config's steps over its training window, seed 0 unless given.
+    checkpoint_sampling = dataclasses.replace(world.restore_config, sample_steps=world.diffusion_config.sample_steps,
+                                              window=world.train_config.window, seed=0)
+    sampling = apply_options(args, checkpoint_sampling, GENERATE_OPTIONS)
+    generated = generate_clip(world, reference, structure, num_steps=sampling.sample_steps, window=sampling.window,
+                              overlap=sampling.overlap, seed=sampling.seed)
     seconds = time.perf_counter() - start
     LOG.info("generated %d frames along %s on %s in %.1f s", len(generated), args.trajectory, world.device, seconds)
     info = {"world_model": str(args.world_model), "scene_id": scene.scene_id, "trajectory": args.trajectory, "seconds": seconds}

@@ -6,11 +6,16 @@ import argparse
 import logging
 from pathlib import Path
 
+from recondreamer.cli_options import add_config_options, naming_flags
+from recondreamer.methods.pdus import PdusSchedule
 from recondreamer.recon.commands import add_training_options, training_config
 
 log = logging.getLogger(__name__)
 
 TRUTH = "truth"  # --restorer value of the oracle restorer
+# PdusSchedule fields train-recondreamer sets from flags; also the keyword arguments of
+# PdusSchedule.for_iterations, which derives S from T when --update-every is not given.
+PDUS_OPTIONS = ("stride", "update_every", "max_offset")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -27,10 +32,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     recon.add_argument("--restorer", required=True, metavar="CKPT",
                        help="DriveRestorer checkpoint (train-restorer output), or 'truth': an oracle that returns the true "
                        "views of each shifted trajectory (synthetic scenes only; the upper bound of any restorer)")
-    recon.add_argument("--stride", required=True, type=float, metavar="DY", help="PDUS stride in metres (6 = one jump to 6 m, no PDUS)")
-    recon.add_argument("--update-every", type=int, default=None, metavar="S",
-                       help="training steps between updates (default: iterations / 5, i.e. four updates)")
-    recon.add_argument("--max-offset", type=float, default=6.0, help="largest lateral offset in metres (default 6)")
+    add_config_options(recon, PdusSchedule, PDUS_OPTIONS, required=("stride",), title="PDUS schedule (PdusSchedule)",
+                       defaults={"update_every": "iterations / 5, i.e. four updates", "max_offset": str(PdusSchedule.max_offset)})
     recon.add_argument("--restore-steps", type=int, default=None, help="DDIM steps of the restorer (default: its checkpoint's)")
     recon.add_argument("--restorer-device", default=None,
                        help="torch device of DriveRestorer (cpu or cuda; default: the reconstruction's --device)")
@@ -63,7 +66,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.errors import RecondreamerError
     from recondreamer.methods.loop import train_recondreamer
-    from recondreamer.methods.pdus import PdusSchedule
     from recondreamer.device import resolve_device
     from recondreamer.generative.inference import load_restorer
     from recondreamer.scene import load_scene
@@ -72,7 +74,9 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     config = training_config(args)
     if args.restore_strength is not None and not 0.0 < args.restore_strength <= 1.0:
         raise RecondreamerError(f"--restore-strength must lie in (0, 1], got {args.restore_strength}")
-    schedule = PdusSchedule.for_iterations(args.stride, config.iterations, args.update_every, args.max_offset)
+    given = {name: getattr(args, name) for name in PDUS_OPTIONS if getattr(args, name) is not None}
+    with naming_flags():
+        schedule = PdusSchedule.for_iterations(iterations=config.iterations, **given)
     scene = load_scene(args.scene)
     if args.restorer == TRUTH:
         restorer, restorer_path = TrueViewRenderer(scene), TRUTH
@@ -81,7 +85,7 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
         restorer, restorer_path = load_restorer(args.restorer, device), str(Path(args.restorer).resolve())
     model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_steps,
                                restorer_path=restorer_path, restore_strength=args.restore_strength)
-    log.info("done: ReconDreamer %s (stride %g m) with %d Gaussians in %s", args.model, args.stride,
+    log.info("done: ReconDreamer %s (stride %g m) with %d Gaussians in %s", args.model, schedule.stride,
              len(model.gaussians), args.out)
     return 0
 

@@ -19,11 +19,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from recondreamer.errors import RecondreamerError
-from recondreamer.recon.data import ORIGINAL, TrainingSet
+from recondreamer.errors import ConfigValueError
+
+if TYPE_CHECKING:  # recon.data imports torch; the CLI imports this module to build its options
+    from recondreamer.recon.data import TrainingSet
 
 # Every backbone preset gets this many update intervals: updates before steps S..4S, S = T/5.
 UPDATE_INTERVALS = 5
@@ -33,23 +36,28 @@ UPDATE_INTERVALS = 5
 class PdusSchedule:
     """When to update, how far to the left, and how the restored videos are weighted."""
 
-    stride: float  # dy, metres to the left added per update
-    update_every: int  # S, training steps between updates
-    iterations: int  # T, total training steps
-    max_offset: float = 6.0  # metres; offsets are min(k * dy, max_offset)
+    # Comments beside the fields are the help of train-recondreamer's --stride, --update-every, --max-offset.
+    stride: float  # PDUS stride dy: metres added to the leftward offset at each update (6 = one jump to the widest shift, no PDUS)
+    update_every: int  # S: training steps between updates
+    iterations: int  # T: total training steps
+    max_offset: float = 6.0  # largest lateral offset in metres: update k renders min(k * stride, max_offset)
     novel_fraction: float = 0.5  # share of batches drawn from the novel data once there is some
 
     def __post_init__(self) -> None:
+        self.check()
+
+    def check(self) -> None:
+        """Raise ConfigValueError naming the first field outside its range (the CLI turns it into the flag)."""
         if not (math.isfinite(self.stride) and self.stride > 0):
-            raise RecondreamerError(f"--stride must be a positive number of metres, got {self.stride}")
+            raise ConfigValueError("stride", f"must be a positive number of metres, got {self.stride}")
         if not (math.isfinite(self.max_offset) and self.max_offset > 0):
-            raise RecondreamerError(f"--max-offset must be a positive number of metres, got {self.max_offset}")
+            raise ConfigValueError("max_offset", f"must be a positive number of metres, got {self.max_offset}")
         if self.update_every < 1:
-            raise RecondreamerError(f"--update-every must be at least 1 step, got {self.update_every}")
+            raise ConfigValueError("update_every", f"must be at least 1 step, got {self.update_every}")
         if self.iterations < 1:
-            raise RecondreamerError(f"iterations must be at least 1, got {self.iterations}")
+            raise ConfigValueError("iterations", f"must be at least 1, got {self.iterations}")
         if not 0.0 < self.novel_fraction < 1.0:
-            raise RecondreamerError(f"novel fraction must lie in (0, 1), got {self.novel_fraction}")
+            raise ConfigValueError("novel_fraction", f"must lie in (0, 1), got {self.novel_fraction}")
 
     @classmethod
     def for_iterations(cls, stride: float, iterations: int, update_every: int | None = None,
@@ -106,6 +114,8 @@ def apply_mixing(training_set: TrainingSet, novel_sources: list[str], novel_frac
     probability 0.5 an original view, else a novel view from video j with probability w_j".
     Without novel data every batch is original.
     """
+    from recondreamer.recon.data import ORIGINAL
+
     if not novel_sources:
         training_set.set_source_weight(ORIGINAL, 1.0)
         return
