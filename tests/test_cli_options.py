@@ -10,6 +10,7 @@ import pytest
 from recondreamer.cli import build_parser, main
 from recondreamer.cli_options import add_config_options, apply_options, field_comments
 from recondreamer.errors import ConfigValueError, RecondreamerError
+from recondreamer.generative.config import RestoreConfig
 from recondreamer.methods.pdus import PdusSchedule
 
 
@@ -119,8 +120,9 @@ class TestRequiredOptions:
 
 
 class TestTrainRecondreamerPdusOptions:
-    """--stride, --update-every and --max-offset come from PdusSchedule: help from its field comments,
-    range errors from its check(), named by flag before any scene is read."""
+    """--stride, --update-every and --max-offset come from PdusSchedule, --restore-sample-steps and
+    --restore-strength from RestoreConfig: help from their field comments, range errors from their
+    check(), named by flag before any scene is read."""
 
     def test_help_shows_each_flag_with_its_field_comment_and_default(self, capsys):
         with pytest.raises(SystemExit) as exit_info:
@@ -132,12 +134,17 @@ class TestTrainRecondreamerPdusOptions:
         assert f"--stride STRIDE {comments['stride']} (required)" in text
         assert f"--update-every UPDATE_EVERY {comments['update_every']} (default: iterations / 5, i.e. four updates)" in text
         assert f"--max-offset MAX_OFFSET {comments['max_offset']} (default: 6.0)" in text
+        restore = field_comments(RestoreConfig)
+        assert f"--restore-sample-steps SAMPLE_STEPS {restore['sample_steps']} (default: the restorer checkpoint's)" in text
+        assert f"--restore-strength STRENGTH {restore['strength']} (default: the restorer checkpoint's)" in text
 
     @pytest.mark.parametrize("options, message", [
         (["--stride", "0"], "--stride must be a positive number of metres, got 0.0"),
         (["--stride", "nan"], "--stride must be a positive number of metres, got nan"),
         (["--stride", "1.5", "--update-every", "0"], "--update-every must be at least 1 step, got 0"),
         (["--stride", "1.5", "--max-offset", "-1"], "--max-offset must be a positive number of metres, got -1.0"),
+        (["--stride", "1.5", "--restore-strength", "0"], "--restore-strength must be in (0, 1], got 0.0"),
+        (["--stride", "1.5", "--restore-sample-steps", "0"], "--restore-sample-steps must be >= 1, got 0"),
     ])
     def test_a_value_out_of_range_is_an_error_naming_the_flag_before_the_scene_is_read(self, options, message, capsys, tmp_path):
         missing = tmp_path / "missing"  # loading this scene would fail with another message
@@ -165,18 +172,19 @@ class TestTrainRecondreamerPdusOptions:
         class Stop(Exception):
             pass
 
-        def capture(scene, config, out, restorer, schedule, *args, **kwargs):
-            schedules.append((config.iterations, schedule))
+        def capture(scene, config, out, restorer, schedule, restore_steps, *, restore_strength, **kwargs):
+            schedules.append((config.iterations, schedule, restore_steps, restore_strength))
             raise Stop
 
         monkeypatch.setattr(loop, "train_recondreamer", capture)
         monkeypatch.setattr("recondreamer.sources.synthetic.truth.TrueViewRenderer", lambda scene: object())
         common = ["train-recondreamer", "--scene", str(tmp_path), "--model", "street", "--restorer", "truth",
                   "--out", str(tmp_path / "out"), "--iterations", "100"]
-        for options in (["--stride", "1.5"], ["--stride", "3", "--update-every", "7", "--max-offset", "4.5"]):
+        for options in (["--stride", "1.5"], ["--stride", "3", "--update-every", "7", "--max-offset", "4.5",
+                                                "--restore-sample-steps", "4", "--restore-strength", "0.5"]):
             with pytest.raises(Stop):
                 main([*common, *options])
-        assert schedules == [
-            (100, PdusSchedule(stride=1.5, update_every=20, iterations=100, max_offset=6.0)),
-            (100, PdusSchedule(stride=3.0, update_every=7, iterations=100, max_offset=4.5)),
+        assert schedules == [  # restore settings not given: None, i.e. the restorer checkpoint's
+            (100, PdusSchedule(stride=1.5, update_every=20, iterations=100, max_offset=6.0), None, None),
+            (100, PdusSchedule(stride=3.0, update_every=7, iterations=100, max_offset=4.5), 4, 0.5),
         ]

@@ -6,7 +6,8 @@ import argparse
 import logging
 from pathlib import Path
 
-from recondreamer.cli_options import add_config_options, naming_flags
+from recondreamer.cli_options import add_config_options, apply_options, naming_flags
+from recondreamer.generative.config import RestoreConfig
 from recondreamer.methods.pdus import PdusSchedule
 from recondreamer.recon.commands import add_training_options, training_config
 
@@ -16,6 +17,9 @@ TRUTH = "truth"  # --restorer value of the oracle restorer
 # PdusSchedule fields train-recondreamer sets from flags; also the keyword arguments of
 # PdusSchedule.for_iterations, which derives S from T when --update-every is not given.
 PDUS_OPTIONS = ("stride", "update_every", "max_offset")
+# RestoreConfig fields of the DriveRestorer inside the loop, as --restore-<field>; unset: the checkpoint's.
+RESTORE_OPTIONS = ("sample_steps", "strength")
+RESTORE_PREFIX = "restore-"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -34,12 +38,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        "views of each shifted trajectory (synthetic scenes only; the upper bound of any restorer)")
     add_config_options(recon, PdusSchedule, PDUS_OPTIONS, required=("stride",), title="PDUS schedule (PdusSchedule)",
                        defaults={"update_every": "iterations / 5, i.e. four updates", "max_offset": str(PdusSchedule.max_offset)})
-    recon.add_argument("--restore-steps", type=int, default=None, help="DDIM steps of the restorer (default: its checkpoint's)")
+    add_config_options(recon, RestoreConfig, RESTORE_OPTIONS, prefix=RESTORE_PREFIX, defaults={"*": "the restorer checkpoint's"},
+                       title="DriveRestorer sampling (RestoreConfig)")
     recon.add_argument("--restorer-device", default=None,
                        help="torch device of DriveRestorer (cpu or cuda; default: the reconstruction's --device)")
-    recon.add_argument("--restore-strength", type=float, default=None,
-                       help="restorer sampling strength in (0, 1]: 1 starts from pure noise, less from the noised render "
-                       "(default: its checkpoint's)")
     recon.set_defaults(func=run_train_recondreamer)
 
     dd4d = subparsers.add_parser(
@@ -64,7 +66,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run_train_recondreamer(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.methods.loop import train_recondreamer
     from recondreamer.device import resolve_device
     from recondreamer.generative.inference import load_restorer
@@ -72,8 +73,9 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     from recondreamer.sources.synthetic.truth import TrueViewRenderer
 
     config = training_config(args)
-    if args.restore_strength is not None and not 0.0 < args.restore_strength <= 1.0:
-        raise RecondreamerError(f"--restore-strength must lie in (0, 1], got {args.restore_strength}")
+    # Ranges checked on the defaults before anything loads; the values given go to the loop, which
+    # lays them over the restorer checkpoint's own RestoreConfig.
+    apply_options(args, RestoreConfig(), RESTORE_OPTIONS, prefix=RESTORE_PREFIX)
     given = {name: getattr(args, name) for name in PDUS_OPTIONS if getattr(args, name) is not None}
     with naming_flags():
         schedule = PdusSchedule.for_iterations(iterations=config.iterations, **given)
@@ -83,7 +85,7 @@ def run_train_recondreamer(args: argparse.Namespace) -> int:
     else:
         device = resolve_device(args.restorer_device or config.device, "--restorer-device" if args.restorer_device else "--device")
         restorer, restorer_path = load_restorer(args.restorer, device), str(Path(args.restorer).resolve())
-    model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_steps,
+    model = train_recondreamer(scene, config, args.out, restorer, schedule, args.restore_sample_steps,
                                restorer_path=restorer_path, restore_strength=args.restore_strength)
     log.info("done: ReconDreamer %s (stride %g m) with %d Gaussians in %s", args.model, schedule.stride,
              len(model.gaussians), args.out)

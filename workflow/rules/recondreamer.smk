@@ -6,7 +6,7 @@ PDUS_OPTIONS = " ".join(
     for flag, key in (
         ("--update-every", "update_every"),
         ("--max-offset", "max_offset"),
-        ("--restore-steps", "restore_steps"),
+        ("--restore-sample-steps", "restore_steps"),
         ("--restore-strength", "restore_strength"),
     )
 )
