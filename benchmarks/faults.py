@@ -9,6 +9,8 @@ half-written | verdict (ok / FAILED). Cases, cheapest first:
   recon_kill        kill -9 inside train-recon after its first checkpoint, same command again:
                     it resumes and ends equal to an uninterrupted run
   restorer_kill     the same for train-restorer (tiny world model, pairs from make-pairs)
+  recondreamer_kill the same for train-recondreamer, killed during a PDUS update and between two updates
+  evaluate_kill     the same for evaluate, killed once its first renders exist
   disk_full         a scene and a checkpoint written to a tmpfs that fills up (or an injected
                     ENOSPC where mounting is impossible): one-line error, the earlier file intact
   second_snakemake  a second snakemake on a results folder a first one is writing
@@ -431,7 +433,7 @@ class Workspace:
     """The temporary folder the cases work in, with the valid inputs they share, each built
     once with the project's own commands."""
 
-    def __init__(self, root: Path, seed: int, workflow_kills: int = 2, log: Callable[[str], None] = print):
+    def __init__(self, root: Path, seed: int, workflow_kills: int = 5, log: Callable[[str], None] = print):
         self.root = Path(root)
         self.seed = seed
         self.rng = random.Random(seed)
@@ -901,11 +903,21 @@ def restorer_arguments(inputs: dict[str, Path]) -> list[str]:
 TIMING_KEYS = ("ms_per_step", "cpu_ms_per_step", "total_cpu_minutes")
 
 
+def tiny_restorer(ws: Workspace) -> Path:
+    """restorer.pt of an uninterrupted train-restorer job: the reference of restorer_kill and the
+    DriveRestorer of recondreamer_kill."""
+
+    def build():
+        folder = ws.folder("restorer", "uninterrupted")
+        ws.run(*restorer_arguments(generative_inputs(ws)), cwd=folder, must_pass=True)
+        return folder / "restorer.pt"
+
+    return ws.once("tiny_restorer", build)
+
+
 def restorer_kill(ws: Workspace) -> list[Row]:
-    inputs = generative_inputs(ws)
-    arguments = restorer_arguments(inputs)
-    reference = ws.folder("restorer", "uninterrupted")
-    ws.run(*arguments, cwd=reference, must_pass=True)
+    arguments = restorer_arguments(generative_inputs(ws))
+    reference = tiny_restorer(ws).parent
     killed_dir = ws.folder("restorer", "killed")
     resume_file = killed_dir / "restorer.pt.resume.pt"
     process = start(arguments, killed_dir, killed_dir / "killed.log")
@@ -933,6 +945,117 @@ def restorer_kill(ws: Workspace) -> list[Row]:
     )
     lost = "nothing" if not left_after_kill and not half_written(killed_dir) else f"after the kill: {left_after_kill}; at the end: {half_written(killed_dir)}"
     return [Row("kill in train-restorer", injected, happened + (f" — {'; '.join(problems)}" if problems else ""), lost, not problems and lost == "nothing")]
+
+
+# ------------------------------------------------------------ case 3b: kill in train-recondreamer
+
+RECONDREAMER_UPDATE_EVERY = 100  # PDUS updates at steps 100 and 200 of 300, each right after that step's checkpoint
+
+
+def recondreamer_arguments(ws: Workspace) -> list[str]:
+    """train-recondreamer of the resume case, run from the run's parent folder (same argv for every run)."""
+    return recondreamer("train-recondreamer", "--scene", str(ws.scene()), "--model", "street", "--preset", "quick",
+                        "--iterations", str(RECON_ITERATIONS), "--seed", "0", "--threads", "1", "--restorer", str(tiny_restorer(ws)),
+                        "--stride", "1.5", "--update-every", str(RECONDREAMER_UPDATE_EVERY), "--out", "run")
+
+
+def _pdus_state(run_dir: Path) -> str:
+    """Where a killed ReconDreamer run stood: its checkpoint step and the update folders on disk."""
+    import torch
+
+    step = torch.load(run_dir / "checkpoint.pt", map_location="cpu", weights_only=True)["step"] if (run_dir / "checkpoint.pt").exists() else 0
+    updates = sorted(p.name for p in (run_dir / "updates").glob("update_*")) if (run_dir / "updates").is_dir() else []
+    pending = [p.name for p in temporaries(run_dir / "updates")] if (run_dir / "updates").is_dir() else []
+    return (f"checkpoint at step {step}, update folders on disk: {', '.join(updates) or 'none'}"
+            + (f", an unfinished update's temporary ({', '.join(pending)})" if pending else ""))
+
+
+def recondreamer_kill(ws: Workspace) -> list[Row]:
+    """kill -9 inside train-recondreamer during a PDUS update and between two updates; the same
+    command again must resume and end with the uninterrupted run's model, updates and pdus.json."""
+    arguments = recondreamer_arguments(ws)
+    reference = ws.folder("recondreamer", "uninterrupted")
+    ws.run(*arguments, cwd=reference, must_pass=True)
+    rows = []
+    for label, trigger, extra_delay in (
+        ("during update 1", "checkpoint.pt", 0.0),  # the step-100 checkpoint is written just before update 1 starts
+        # The steps between two updates take about a second on the tiny scene: kill the moment update 1 is on disk.
+        ("between updates 1 and 2", "updates/update_01", 0.0),
+    ):
+        parent = ws.folder("recondreamer", f"killed-{label.split()[0]}")
+        run_dir = parent / "run"
+        process = start(arguments, parent, parent / "killed.log")
+        injected = (f"kill -9 of `train-recondreamer` (quick preset, 300 iterations, updates every {RECONDREAMER_UPDATE_EVERY} steps, "
+                    f"tiny dd2 restorer) {label}: " + (f"as soon as `{trigger}` exists" if not extra_delay else f"{extra_delay:.1f} s after `{trigger}` appears"))
+        appeared = wait_for(lambda: (run_dir / trigger).exists() or process.poll() is not None, COMMAND_TIMEOUT, poll=0.01)
+        killed = appeared and (run_dir / trigger).exists() and kill_after(process, extra_delay)
+        if not killed or (run_dir / "model.pt").exists():
+            kill_group(process)
+            rows.append(Row("kill in train-recondreamer", injected, "the kill came too late: the run had finished (inconclusive)", "-", False))
+            continue
+        where = _pdus_state(run_dir)
+        left_after_kill = half_written(run_dir)
+        again = ws.run(*arguments, cwd=parent)
+        log = (run_dir / "train.log").read_text() if (run_dir / "train.log").exists() else ""
+        problems = []
+        if again.returncode != 0:
+            problems.append(f"the second run failed: {quoted(again.stderr.strip().splitlines()[-1] if again.stderr.strip() else '')}")
+        resumed = re.search(r"resumed from checkpoint\.pt at step (\d+)/", log)
+        if not resumed:
+            problems.append("train.log does not say it resumed")
+        reloaded = sorted(set(re.findall(r"pdus: update (\d+) \(\S+ m\) reloaded", again.output)))
+        # update.json records the update's wall time ('seconds'), which differs between any two runs.
+        difference = compare_trees(reference / "run", run_dir, ignore_files=("train.log", "run.json"), ignore_keys=("seconds",))
+        if not difference.identical:
+            problems.append(f"differs from the uninterrupted run: {difference.describe()}")
+        happened = (
+            f"at the kill: {where}; the rerun resumed at step {resumed.group(1) if resumed else '?'}, "
+            + (f"reloaded update(s) {', '.join(reloaded)} from disk" if reloaded else "reloaded no update")
+            + " and finished; model.pt, checkpoint.pt, snapshots, pdus.json and every update's rendered and restored frames: "
+            + ("identical to" if difference.identical else "NOT identical to") + " an uninterrupted run's"
+        )
+        rows.append(resume_row("kill in train-recondreamer", injected, happened, problems, left_after_kill, run_dir))
+    return rows
+
+
+# ------------------------------------------------------------------------ case 3c: kill in evaluate
+
+
+def evaluate_arguments(ws: Workspace) -> list[str]:
+    """evaluate of the resume case (the uninterrupted run along shift@3 and the original
+    trajectory, shipped evaluation models), run from its parent folder."""
+    return recondreamer("evaluate", "--scene", str(ws.scene()), "--run", str(ws.full_run()),
+                        "--renders", "renders/shift@3", "--trajectory", "shift@3", "--renders", "renders/original", "--trajectory", "original",
+                        "--models", SHIPPED_WEIGHTS, "--threads", "1", "--out", "metrics.json")
+
+
+def evaluate_kill(ws: Workspace) -> list[Row]:
+    """kill -9 of evaluate once its first renders are on disk; the same command again
+    must give the uninterrupted job's metrics file and renders."""
+    arguments = evaluate_arguments(ws)
+    reference = ws.folder("evaluate", "uninterrupted")
+    ws.run(*arguments, cwd=reference, must_pass=True)
+    parent = ws.folder("evaluate", "killed")
+    process = start(arguments, parent, parent / "killed.log")
+    injected = ("kill -9 of `evaluate` (shift@3 and original, shipped evaluation models) as soon as its first renders "
+                "(shift@3) are on disk, before its metrics file")
+    killed = kill_when_exists(process, parent / "renders" / "shift@3", timeout=COMMAND_TIMEOUT)
+    if not killed or (parent / "metrics.json").exists():
+        return [Row("kill in evaluate", injected, "the kill came too late: the job had finished (inconclusive)", "-", False)]
+    on_disk = sorted(p.name for p in (parent / "renders").iterdir() if not TEMPORARY.match(p.name))
+    left_after_kill = half_written(parent)
+    again = ws.run(*arguments, cwd=parent)
+    problems = []
+    if again.returncode != 0:
+        problems.append(f"the second run failed: {quoted(again.stderr.strip().splitlines()[-1] if again.stderr.strip() else '')}")
+    difference = compare_trees(reference, parent, ignore_files=("killed.log",))
+    if not difference.identical:
+        problems.append(f"differs from the uninterrupted job: {difference.describe()}")
+    happened = (
+        f"at the kill: renders on disk: {', '.join(on_disk) or 'none'}, no metrics file; the rerun finished; metrics.json "
+        f"and every render: {'identical to' if difference.identical else 'NOT identical to'} an uninterrupted job's"
+    )
+    return [resume_row("kill in evaluate", injected, happened, problems, left_after_kill, parent)]
 
 
 # ------------------------------------------------------------------------- case 4: disk full
@@ -1347,6 +1470,8 @@ CASES: dict[str, Callable[[Workspace], list[Row]]] = {
     "corrupt_inputs": corrupt_inputs,
     "recon_kill": recon_kill,
     "restorer_kill": restorer_kill,
+    "recondreamer_kill": recondreamer_kill,
+    "evaluate_kill": evaluate_kill,
     "disk_full": disk_full,
     "second_snakemake": second_snakemake,
     "workflow_kills": workflow_kills,
@@ -1393,9 +1518,11 @@ What the cases check:
   line naming the file and the problem (no Python traceback) and writes nothing at its `--out`.
   A bad config value is reported when the workflow is parsed, naming the config file that set it,
   the key and the value.
-- **kill in train-recon / train-restorer**: after a `kill -9` past the first checkpoint, the same
-  command resumes (its log says so) and ends with exactly the state an uninterrupted run ends
-  with (every tensor compared, renders compared pixel by pixel).
+- **kill in train-recon / train-restorer / train-recondreamer / evaluate**: after a `kill -9` (past
+  the first checkpoint; for train-recondreamer during a PDUS update and between two updates; for
+  evaluate once its renders are on disk, before its metrics file), the same command resumes (its log says so) and ends with
+  exactly the state an uninterrupted run ends with (every tensor compared, renders and restored
+  frames compared pixel by pixel).
 - **disk full**: a write that runs out of space ends with a one-line error naming the output; the
   earlier scene or checkpoint is intact and no temporary is left.
 - **second snakemake**: a second run on a folder a first run is writing is refused, and after a
@@ -1420,7 +1547,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES), metavar="NAME", help=f"cases to run (default all: {' '.join(CASES)})")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random kill moments and garbage bytes (default 0)")
-    parser.add_argument("--workflow-kills", type=int, default=2, help="kills of the whole quick workflow in workflow_kills (default 2)")
+    parser.add_argument("--workflow-kills", type=int, default=5, help="kills of the whole quick workflow in workflow_kills (default 5)")
     parser.add_argument("--keep", action="store_true", help="keep the temporary folder (its path is printed)")
     parser.add_argument("--out", type=Path, default=None, help="also write the doc page (Markdown) here, e.g. docs/reliability.md")
     args = parser.parse_args(argv)

@@ -1,5 +1,5 @@
 """The fast part of the fault-injection suite (benchmarks/faults.py): damaged inputs of most kinds
-and a kill -9 inside train-recon, run through the real commands; and the suite's own checks,
+and a kill -9 inside train-recon and inside evaluate, run through the real commands; and the suite's own checks,
 which must be able to say FAILED. The whole suite: python benchmarks/faults.py."""
 
 from __future__ import annotations
@@ -56,6 +56,12 @@ class TestCorruptInputs:
 class TestKillInTrainRecon:
     def test_resumes_and_ends_equal_to_an_uninterrupted_run(self, workspace):
         rows = faults.recon_kill(workspace)
+        assert all(row.ok for row in rows), faults.markdown_table(rows)
+
+
+class TestKillInEvaluate:
+    def test_resumes_and_ends_equal_to_an_uninterrupted_job(self, workspace):
+        rows = faults.evaluate_kill(workspace)
         assert all(row.ok for row in rows), faults.markdown_table(rows)
 
 
