@@ -253,11 +253,13 @@ def unreadable(path: Path) -> str | None:
 
 
 def half_written(folder: Path) -> list[str]:
-    """Temporaries and files that look complete but do not load, below ``folder``."""
+    """Temporaries, and files under their final names that do not load, below ``folder`` (what
+    lies inside a temporary folder belongs to that temporary)."""
     problems = [f"{p.relative_to(folder)} (temporary)" for p in temporaries(folder)]
     if folder.is_dir():
         for path in sorted(folder.rglob("*")):
-            if path.is_file() and not TEMPORARY.match(path.name) and (why := unreadable(path)):
+            inside_temporary = any(TEMPORARY.match(part) for part in path.relative_to(folder).parts)
+            if path.is_file() and not inside_temporary and (why := unreadable(path)):
                 problems.append(f"{path.relative_to(folder)} ({why[:80]})")
     return problems
 
@@ -815,10 +817,17 @@ def corrupt_inputs(ws: Workspace) -> list[Row]:
     return [check(ws) for check in CORRUPT_INPUTS.values()]
 
 
-def resume_row(case: str, injected: str, happened: str, problems: list[str], left_after_kill: list, folder: Path) -> Row:
-    """The row of a kill-and-resume case: ok when nothing differed and nothing was left half-written."""
+def resume_row(case: str, injected: str, happened: str, problems: list[str], left_after_kill: list[str], folder: Path) -> Row:
+    """The row of a kill-and-resume case: ok when nothing differed, no file under its final name
+    was half-written after the kill, and nothing at all was left at the end. A kill -9 in the
+    middle of a write leaves that write's hidden temporary (no process can clean up on SIGKILL):
+    allowed, provided the rerun removes it."""
+    damaged = [p for p in left_after_kill if not p.endswith("(temporary)")]
+    swept = [p.removesuffix(" (temporary)") for p in left_after_kill if p.endswith("(temporary)")]
     left_at_end = half_written(folder)
-    lost = "nothing" if not left_after_kill and not left_at_end else f"after the kill: {left_after_kill}; at the end: {left_at_end}"
+    lost = "nothing" if not damaged and not left_at_end else f"after the kill: {damaged}; at the end: {left_at_end}"
+    if swept and not left_at_end:
+        happened += f"; the kill left the hidden temporary of the write in progress ({', '.join(swept)}), which the rerun removed"
     return Row(case, injected, happened + (f" — {'; '.join(problems)}" if problems else ""), lost, not problems and lost == "nothing")
 
 
@@ -871,8 +880,7 @@ def recon_kill(ws: Workspace) -> list[Row]:
         f"and finished; model.pt, checkpoint.pt, both snapshots (every tensor, optimiser moments included) and the shift@3 render: "
         f"{'identical to' if difference.identical and render_difference.identical else 'NOT identical to'} an uninterrupted run's"
     )
-    lost = "nothing" if not left_after_kill and not half_written(run_dir) else f"after the kill: {left_after_kill}; at the end: {half_written(run_dir)}"
-    return [Row("kill in train-recon", injected, happened + (f" — {'; '.join(problems)}" if problems else ""), lost, not problems and lost == "nothing")]
+    return [resume_row("kill in train-recon", injected, happened, problems, left_after_kill, run_dir)]
 
 
 # --------------------------------------------------------------- case 3: kill in train-restorer
@@ -943,8 +951,7 @@ def restorer_kill(ws: Workspace) -> list[Row]:
         f"resume file; restorer.pt (weights, configs, final loss; timings aside): "
         f"{'identical to' if difference.identical else 'NOT identical to'} an uninterrupted job's"
     )
-    lost = "nothing" if not left_after_kill and not half_written(killed_dir) else f"after the kill: {left_after_kill}; at the end: {half_written(killed_dir)}"
-    return [Row("kill in train-restorer", injected, happened + (f" — {'; '.join(problems)}" if problems else ""), lost, not problems and lost == "nothing")]
+    return [resume_row("kill in train-restorer", injected, happened, problems, left_after_kill, killed_dir)]
 
 
 # ------------------------------------------------------------ case 3b: kill in train-recondreamer
@@ -1520,9 +1527,11 @@ What the cases check:
   the key and the value.
 - **kill in train-recon / train-restorer / train-recondreamer / evaluate**: after a `kill -9` (past
   the first checkpoint; for train-recondreamer during a PDUS update and between two updates; for
-  evaluate once its renders are on disk, before its metrics file), the same command resumes (its log says so) and ends with
-  exactly the state an uninterrupted run ends with (every tensor compared, renders and restored
-  frames compared pixel by pixel).
+  evaluate once its renders are on disk, before its metrics file), the same command resumes (its
+  log says so) and ends with exactly the state an uninterrupted run ends with (every tensor
+  compared, renders and restored frames compared pixel by pixel). No file under its final name is
+  ever half-written; a kill in the middle of a write leaves that write's hidden temporary, which
+  the rerun removes.
 - **disk full**: a write that runs out of space ends with a one-line error naming the output; the
   earlier scene or checkpoint is intact and no temporary is left.
 - **second snakemake**: a second run on a folder a first run is writing is refused, and after a

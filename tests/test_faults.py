@@ -107,5 +107,15 @@ class TestTheSuitesChecks:
         assert faults.half_written(tmp_path / "a") == []
         faults.truncate(tmp_path / "a" / "model.pt")
         (tmp_path / "a" / ".scene.host.7.x.tmp").mkdir()
+        (tmp_path / "a" / ".scene.host.7.x.tmp" / "000.png").write_bytes(b"")  # part of the temporary, not listed apart
         found = faults.half_written(tmp_path / "a")
         assert len(found) == 2 and found[0].endswith("(temporary)") and found[1].startswith("model.pt")
+
+    def test_a_kill_may_leave_a_temporary_that_the_rerun_removes_but_no_broken_final_file(self, tmp_path):
+        temporary = [".out.host.7.x.tmp (temporary)"]
+        assert faults.resume_row("kill", "k", "h", [], temporary, tmp_path).ok  # swept by the rerun: tmp_path is clean
+        assert "which the rerun removed" in faults.resume_row("kill", "k", "h", [], temporary, tmp_path).happened
+        assert not faults.resume_row("kill", "k", "h", [], ["model.pt (truncated)"], tmp_path).ok
+        (tmp_path / ".out.host.7.x.tmp").mkdir()
+        assert not faults.resume_row("kill", "k", "h", [], temporary, tmp_path).ok  # still there at the end
+        assert not faults.resume_row("kill", "k", "h", ["differs"], [], tmp_path / "nowhere").ok

@@ -108,7 +108,6 @@ def test_report_with_missing_files_marks_cells_and_counts(tmp_path, capsys):
 
 
 def test_dry_run_asks_the_workflow_for_street_dd4d_and_both_strides(tmp_path, capfd):
-    pytest.importorskip("snakemake")
     root = workflow_copy(tmp_path)
     config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
     assert gate.main(["--directory", str(root), "--configfile", "config/quick.yaml", "--iterations", "7", "--dry-run"]) == 0
@@ -127,7 +126,6 @@ def test_dry_run_asks_the_workflow_for_street_dd4d_and_both_strides(tmp_path, ca
 
 
 def test_oracle_adds_truth_runs_with_no_restorer_behind_them(tmp_path, capfd):
-    pytest.importorskip("snakemake")
     root = workflow_copy(tmp_path)
     segments = len(yaml.safe_load((root / "config" / "quick.yaml").read_text())["synthetic"]["segments"])
     assert gate.main(["--directory", str(root), "--configfile", "config/quick.yaml", "--backbones", "street",
@@ -141,7 +139,6 @@ def test_oracle_adds_truth_runs_with_no_restorer_behind_them(tmp_path, capfd):
 
 
 def test_local_restorer_checkpoint_needs_no_restorer_training(tmp_path, capfd):
-    pytest.importorskip("snakemake")
     root = workflow_copy(tmp_path)
     checkpoint = tmp_path / "restorer.pt"
     checkpoint.write_bytes(b"")  # a dry run only checks that it exists

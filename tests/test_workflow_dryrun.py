@@ -15,8 +15,6 @@ from recondreamer.configs import workflow_config
 REPO = Path(__file__).resolve().parents[1]
 WORKFLOW_FILES = ("Snakefile", "workflow", "config", "profiles")
 
-pytest.importorskip("snakemake", reason="the workflow tests need snakemake (pip install -e '.[test]')")
-
 
 def workflow_copy(tmp_path: Path) -> Path:
     """The workflow files in a fresh directory, so that dry runs touch nothing in the checkout."""
