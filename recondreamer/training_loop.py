@@ -1,5 +1,10 @@
-"""The one resumable training loop of every trainer: autoencoder, world models, DriveRestorers,
-pixel refiner and evaluation models.
+"""The one resumable training loop of every trainer: Gaussian reconstructions, autoencoder, world
+models, DriveRestorers, pixel refiner and evaluation models.
+
+``run_steps`` is the loop itself (steps, progress with ETA, resume state every
+``checkpoint_every`` steps); the reconstruction trainer (``recon.trainer``) drives it with its
+own step (view sampling, densification, per-parameter learning rates) and checkpoint, and
+``run_training_loop`` with the step of every network trainer:
 
 AdamW with a per-step learning rate (``warmup_cosine``: linear warm-up, cosine decay to a floor),
 optional gradient clipping and an exponential moving average of the weights. Batches are drawn by
@@ -43,35 +48,77 @@ def resume_path(out: str | os.PathLike) -> Path:
     return out.with_name(out.name + ".resume.pt")
 
 
+def format_duration(seconds: float) -> str:
+    seconds = round(seconds)
+    return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m{seconds % 60:02d}s" if seconds >= 3600 else f"{seconds // 60}m{seconds % 60:02d}s"
+
+
 class ProgressLog:
-    """Running-mean loss, ms/step (wall and process CPU) and ETA every ``every`` steps.
+    """Running means of a job's step metrics, ms/step (wall and process CPU) and ETA every ``every`` steps.
 
     CPU ms/step is what a step costs on an idle core; wall ms/step also counts the time other
-    jobs on a shared machine take from this one.
+    jobs on a shared machine take from this one. ``describe(mean)`` adds a job's own fields to the
+    line (the reconstruction trainer: PSNR, Gaussians, loss parts).
     """
 
-    def __init__(self, name: str, total: int, start: int, every: int):
-        self.name, self.total, self.every = name, total, every
+    def __init__(
+        self,
+        name: str,
+        total: int,
+        start: int,
+        every: int,
+        logger: logging.Logger = LOG,
+        describe: Callable[[dict[str, float]], str] | None = None,
+    ):
+        self.name, self.total, self.every, self.logger, self.describe = name, total, every, logger, describe
         self.start_step, self.start_time, self.start_cpu = start, time.perf_counter(), time.process_time()
-        self.losses: list[float] = []
+        self.window: list[dict[str, float]] = []
+        self.last_mean: dict[str, float] = {}  # the metrics of the last logged window
 
-    def update(self, step: int, loss: float) -> None:
-        self.losses.append(loss)
-        done = step + 1
-        if done % self.every == 0 or done == self.total:
-            ms = self.ms_per_step(done)
-            eta = ms * (self.total - done) / 1000.0
-            LOG.info(
-                "%s step %d/%d loss %.5f  %.0f ms/step (%.0f CPU ms/step)  ETA %dm%02ds",
-                self.name, done, self.total, float(np.mean(self.losses)), ms, self.cpu_ms_per_step(done), eta // 60, eta % 60,
-            )
-            self.losses.clear()
+    def update(self, done: int, metrics: dict[str, float]) -> None:
+        """Record the metrics of step ``done`` (1-based; they include "loss") and log every ``every`` steps."""
+        self.window.append(metrics)
+        if done % self.every != 0 and done != self.total:
+            return
+        mean = {key: float(np.mean([m[key] for m in self.window if key in m])) for key in self.window[-1]}
+        ms = self.ms_per_step(done)
+        extras = self.describe(mean) if self.describe is not None else ""
+        self.logger.info(
+            "%s step %d/%d loss %.5f%s  %.0f ms/step (%.0f CPU ms/step)  ETA %s",
+            self.name, done, self.total, mean["loss"], f" {extras}" if extras else "", ms, self.cpu_ms_per_step(done),
+            format_duration(ms * (self.total - done) / 1000.0),
+        )
+        self.window, self.last_mean = [], mean
 
     def ms_per_step(self, done: int) -> float:
         return 1000.0 * (time.perf_counter() - self.start_time) / max(1, done - self.start_step)
 
     def cpu_ms_per_step(self, done: int) -> float:
         return 1000.0 * (time.process_time() - self.start_cpu) / max(1, done - self.start_step)
+
+
+def run_steps(
+    progress: ProgressLog,
+    step: Callable[[int], dict[str, float]],  # (steps done before it) -> its metrics, "loss" among them
+    start: int,
+    total: int,
+    checkpoint_every: int,
+    save_state: Callable[[int], None],  # (steps done) -> writes the job's resume state
+    after_step: Callable[[int], None] | None = None,  # (steps done) -> e.g. a snapshot
+) -> None:
+    """Steps ``start``..``total`` - 1 of a resumable job, the one loop every trainer runs.
+
+    After each step: its metrics go to ``progress``, ``after_step`` runs, and every
+    ``checkpoint_every`` steps short of the last the job's resume state is written (the job
+    writes its final state itself).
+    """
+    for done in range(start + 1, total + 1):
+        metrics = step(done - 1)
+        progress.update(done, metrics)
+        if after_step is not None:
+            after_step(done)
+        if done % checkpoint_every == 0 and done < total:
+            save_state(done)
 
 
 def run_training_loop(
@@ -130,10 +177,10 @@ def run_training_loop(
         generator.set_state(state["torch_rng"])
         start = state["step"]
         LOG.info("%s: resuming from %s at step %d", name, state_file, start)
-    progress = ProgressLog(name, steps, start, log_every)
     recent: list[float] = []
-    module.train()
-    for step in range(start, steps):
+
+    def one_step(step: int) -> dict[str, float]:
+        nonlocal rng
         for group in optimizer.param_groups:
             group["lr"] = lr_schedule(step, steps, learning_rate, warmup)
         if per_step_batches:
@@ -146,14 +193,20 @@ def run_training_loop(
         optimizer.step()
         if ema is not None:
             ema.update_parameters(module)
-        recent = (recent + [loss.item()])[-50:]
-        progress.update(step, loss.item())
-        if (step + 1) % checkpoint_every == 0 and step + 1 < steps:
-            save_checkpoint(
-                state_file, "training_state", job_identity.get("arch", ""), job_identity, module.state_dict(),
-                optimizer=optimizer.state_dict(), numpy_rng=rng.bit_generator.state,
-                torch_rng=generator.get_state(), step=step + 1, ema=None if ema is None else ema.state_dict(),
-            )
+        recent.append(loss.item())
+        del recent[:-50]
+        return {"loss": recent[-1]}
+
+    def save_state(done: int) -> None:
+        save_checkpoint(
+            state_file, "training_state", job_identity.get("arch", ""), job_identity, module.state_dict(),
+            optimizer=optimizer.state_dict(), numpy_rng=rng.bit_generator.state,
+            torch_rng=generator.get_state(), step=done, ema=None if ema is None else ema.state_dict(),
+        )
+
+    progress = ProgressLog(name, steps, start, log_every)
+    module.train()
+    run_steps(progress, one_step, start, steps, checkpoint_every, save_state)
     if ema is not None:
         module.load_state_dict(ema.module.state_dict())
     module.eval()

@@ -87,8 +87,3 @@ def view_loss(
         total = total + config.sky * term
         parts["sky"] = float(term.detach())
     return total, parts
-
-
-def psnr(pred: torch.Tensor, target: torch.Tensor) -> float:
-    mse = float(((pred.detach() - target) ** 2).mean())
-    return 10.0 * torch.log10(torch.tensor(1.0 / max(mse, 1e-10))).item()

@@ -2,7 +2,10 @@
 
 ``train_scene`` is the entry point: it builds (or resumes) a model for a scene and trains it in
 a run directory, writing snapshots at configured steps, an atomic checkpoint every
-``checkpoint_every`` steps, the final ``model.pt`` and progress lines in ``train.log``.
+``checkpoint_every`` steps, the final ``model.pt`` and progress lines in ``train.log``. The steps
+run in the project's one resumable loop (``recondreamer.training_loop.run_steps``); what is the
+reconstruction's own is the step (the Gaussian set and the optimiser's parameters change with
+densification, each parameter group has its own learning-rate schedule) and the checkpoint.
 
 Resume is exact: the checkpoint holds the model, Adam moments, density statistics and both
 random generators (view sampling and split sampling), so a resumed run takes the same steps as
@@ -21,6 +24,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError
+from recondreamer.evaluation.image_metrics import psnr
 from recondreamer.io import OutputPathError, write_json_atomic
 from recondreamer.recon.base import GaussianSceneModel
 from recondreamer.recon.checkpoint import (
@@ -42,22 +46,14 @@ from recondreamer.recon.density import (
     build_optimizer,
     update_learning_rates,
 )
-from recondreamer.recon.losses import psnr, view_loss
+from recondreamer.recon.losses import view_loss
 from recondreamer.recon.models import MODEL_CLASSES
+from recondreamer.training_loop import ProgressLog, run_steps
 
 logger = logging.getLogger("recondreamer.recon")
 
 # Called before every step with the trainer (e.g. PDUS refreshes the novel views every S steps).
 StepCallback = Callable[["Trainer"], None]
-
-
-def format_duration(seconds: float) -> str:
-    seconds = round(seconds)
-    return (
-        f"{seconds // 3600}h{seconds % 3600 // 60:02d}m{seconds % 60:02d}s"
-        if seconds >= 3600
-        else f"{seconds // 60}m{seconds % 60:02d}s"
-    )
 
 
 class Trainer:
@@ -141,7 +137,7 @@ class Trainer:
             gaussians.active_sh_degree += 1
         return {
             "loss": float(loss.detach()),
-            "psnr": psnr(render["rgb"], image),
+            "psnr": psnr(render["rgb"].detach().cpu().numpy(), image.cpu().numpy()),
             **parts,
         }
 
@@ -149,29 +145,30 @@ class Trainer:
     def run(self) -> GaussianSceneModel:
         config = self.config
         total = config.iterations
-        started, first_step = time.monotonic(), self.step
-        window: list[dict[str, float]] = []
         file_handler = self._attach_log()
+        started = time.monotonic()
         try:
             if 0 < self.step < total:
                 logger.info("resumed from %s at step %d/%d", CHECKPOINT_NAME, self.step, total)  # marks the resume in train.log
             if self.step >= total:
                 logger.info("already trained %d/%d steps", self.step, total)
-            while self.step < total:
+            progress = ProgressLog(config.model, total, self.step, config.log_every, logger, self._describe)
+
+            def one_step(done: int) -> dict[str, float]:
                 for callback in self.callbacks:
                     callback(self)
-                window.append(self.train_step())
-                if self.step % config.log_every == 0 or self.step == total:
-                    self._log_progress(window, started, first_step)
-                    window = []
+                return self.train_step()
+
+            def after_step(done: int) -> None:
+                self.last_psnr = progress.last_mean.get("psnr", self.last_psnr)
+                if self.run_dir is not None and done in config.snapshot_steps:
+                    save_record(snapshot_path(self.run_dir, done), self._record("snapshot"))
+
+            def save_state(done: int) -> None:
                 if self.run_dir is not None:
-                    if self.step in config.snapshot_steps:
-                        save_record(
-                            snapshot_path(self.run_dir, self.step),
-                            self._record("snapshot"),
-                        )
-                    if self.step % config.checkpoint_every == 0 and self.step < total:
-                        self.save_checkpoint()
+                    self.save_checkpoint()
+
+            run_steps(progress, one_step, self.step, total, config.checkpoint_every, save_state, after_step)
             if self.run_dir is not None:
                 self.save_checkpoint()
                 save_record(self.run_dir / MODEL_NAME, self._record("model"))
@@ -182,33 +179,10 @@ class Trainer:
                 file_handler.close()
         return self.model
 
-    def _log_progress(
-        self, window: list[dict[str, float]], started: float, first_step: int
-    ) -> None:
-        done = self.step - first_step
-        elapsed = time.monotonic() - started
-        eta = elapsed / max(done, 1) * (self.config.iterations - self.step)
-        mean = {
-            key: float(np.mean([w[key] for w in window if key in w]))
-            for key in window[-1]
-        }
-        self.last_psnr = mean["psnr"]
-        extras = " ".join(
-            f"{key} {mean[key]:.4f}"
-            for key in ("l1", "ssim", "depth", "sky")
-            if key in mean
-        )
-        logger.info(
-            "step %d/%d loss %.4f psnr %.2f gaussians %d %s | %.3f s/it eta %s",
-            self.step,
-            self.config.iterations,
-            mean["loss"],
-            mean["psnr"],
-            len(self.model.gaussians),
-            extras,
-            elapsed / max(done, 1),
-            format_duration(eta),
-        )
+    def _describe(self, mean: dict[str, float]) -> str:
+        """The progress line's reconstruction fields: PSNR, Gaussians and the loss parts."""
+        parts = " ".join(f"{key} {mean[key]:.4f}" for key in ("l1", "ssim", "depth", "sky") if key in mean)
+        return f"psnr {mean['psnr']:.2f} gaussians {len(self.model.gaussians)} {parts}".rstrip()
 
     def _attach_log(self) -> logging.Handler | None:
         if self.run_dir is None:
