@@ -49,7 +49,7 @@ def register(subparsers) -> None:
     p.add_argument("--run", type=Path, default=None, help="run directory of a trained reconstruction to render into the --renders directories first (default: score existing renders)")
     p.add_argument("--trajectory", required=True, action="append", help="trajectory of the matching --renders: original, shift@Y, lane_change or file:PATH (repeatable)")
     p.add_argument("--models", type=Path, default=None, help="directory written by train-eval-models")
-    p.add_argument("--detector", type=Path, default=None, help="vehicle detector model file (overrides --models)")
+    p.add_argument("--detector", type=Path, default=None, help="vehicle detector model file, or Ultralytics YOLO weights such as yolo11x.pt (needs the [yolo] extra; overrides --models)")
     p.add_argument("--lane-model", type=Path, default=None, help="lane segmenter model file (overrides --models)")
     p.add_argument("--fid-model", type=Path, default=None, help="FID feature network file (overrides --models): a train-eval-models fid_features.pt, or a local copy of pytorch-fid's InceptionV3 weights (pt_inception-2015-12-05-6726825d.pth) for the published FID's 2048-d pool features")
     add_config_options(p, ScoringConfig, SCORING_OPTIONS, title="scoring (ScoringConfig)")

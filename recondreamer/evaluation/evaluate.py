@@ -54,7 +54,7 @@ def load_eval_models(models_dir: str | Path | None, detector: str | Path | None 
         return Path(models_dir) / inference.MODEL_FILES[kind]
 
     return EvalModels(
-        detector=inference.load_model(pick("vehicle_detector", detector), "vehicle_detector"),
+        detector=inference.load_detector(pick("vehicle_detector", detector)),
         lanes=inference.load_model(pick("lane_segmenter", lane_model), "lane_segmenter"),
         features=inference.load_fid_model(pick("fid_features", fid_model)),
     )

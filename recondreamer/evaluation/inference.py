@@ -6,7 +6,8 @@ the network's input size (antialiased bilinear) and outputs are mapped back to t
 so the same model scores renders at any resolution.
 
 The FID feature network may instead be a user's local copy of pytorch-fid's InceptionV3 weights
-(a plain state_dict, see ``inception.py``); ``load_fid_model`` tells the two apart.
+(a plain state_dict, see ``inception.py``); ``load_fid_model`` tells the two apart. The vehicle
+detector may be a user's Ultralytics YOLO checkpoint (``yolo.py``); ``load_detector`` tells them apart.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from recondreamer.errors import CheckpointError, RecondreamerError
 from recondreamer.evaluation.inception import INCEPTION_STATE_DICT_KEY, FIDInceptionV3
 from recondreamer.configs import from_dict, to_dict
 from recondreamer.evaluation.config import MODEL_CONFIGS
+from recondreamer.evaluation.yolo import YOLO_KIND, YOLOVehicleDetector, is_ultralytics_checkpoint, load_yolo_detector
 from recondreamer.io import atomic_path
 from recondreamer.provenance import command_line
 
@@ -105,6 +107,16 @@ def load_model(path: str | Path, kind: str) -> LoadedModel:
     return _model_from_payload(path, _read_checkpoint(path, "evaluation model file not found (train it with 'recondreamer train-eval-models')"), kind)
 
 
+def load_detector(path: str | Path) -> LoadedModel:
+    """The NTA-IoU vehicle detector in ``path``: a recondreamer ``vehicle_detector`` model file, or a
+    user's Ultralytics YOLO detection checkpoint (``yolo.py``), told apart by the archive's pickle."""
+    path = Path(path)
+    if path.is_file() and is_ultralytics_checkpoint(path):
+        detector = load_yolo_detector(path)
+        return LoadedModel(YOLO_KIND, detector, path, file_sha256(path), {"source": "user-supplied Ultralytics YOLO weights"})
+    return load_model(path, "vehicle_detector")
+
+
 def is_inception(model: LoadedModel) -> bool:
     return model.kind == INCEPTION_KIND
 
@@ -152,6 +164,8 @@ def detect_vehicles(
     model: torch.nn.Module, images: np.ndarray, score_threshold: float, batch_size: int = 16
 ) -> list[tuple[np.ndarray, np.ndarray]]:  # images (N,H,W,3) uint8 -> N x (boxes (n,4) xyxy px, scores (n,))
     """Vehicle boxes in the frames' own pixel coordinates, scores above ``score_threshold``."""
+    if isinstance(model, YOLOVehicleDetector):
+        return model.detect(images, score_threshold)
     config = model.config
     height, width = images.shape[1:3]
     scale = np.array([width / config.input_width, height / config.input_height] * 2)
