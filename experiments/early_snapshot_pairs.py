@@ -2,6 +2,8 @@
 
     python experiments/early_snapshot_pairs.py --out results/early-pairs [--scenes 16] [--steps 3000]
 
+docs/foundation.md cites its tables at 16 and at 40 scenes.
+
 The paper's recipe, as the foundation runs it: pairs of under-trained Street Gaussians renders
 along the recorded trajectory and the recorded frames. The foundation takes the snapshots of
 steps 250 and 500 (of 700), whose renders (about 22-27 dB) are much better than the renders the
