@@ -25,21 +25,12 @@ class GaussianStats:
     cov: np.ndarray  # (D,D) float64
     num_samples: int
 
-    @property
-    def dim(self) -> int:
-        return int(self.mean.shape[0])
 
-    @property
-    def full_rank(self) -> bool:
-        """Whether the sample covariance can be full rank (needs more samples than dimensions)."""
-        return self.num_samples > self.dim
+def checked_features(features: np.ndarray) -> np.ndarray:  # (N,D) -> (N,D) float64
+    """A feature set as float64, refused (ValueError) unless it is (N, D), N >= 2, all finite.
 
-
-def gaussian_stats(features: np.ndarray) -> GaussianStats:  # features (N,D)
-    """Sample mean and unbiased covariance (ddof=1), as pytorch-fid computes them.
-
-    At least two samples are needed for a covariance; fewer raise ValueError rather than
-    returning a made-up number.
+    At least two samples are needed for a covariance; fewer raise rather than giving a made-up
+    number.
     """
     features = np.asarray(features, dtype=np.float64)
     if features.ndim != 2:
@@ -48,6 +39,12 @@ def gaussian_stats(features: np.ndarray) -> GaussianStats:  # features (N,D)
         raise ValueError(f"a covariance needs at least 2 samples, got {features.shape[0]}")
     if not np.all(np.isfinite(features)):
         raise ValueError("features contain NaN or infinite values")
+    return features
+
+
+def gaussian_stats(features: np.ndarray) -> GaussianStats:  # features (N,D)
+    """Sample mean and unbiased covariance (ddof=1), as pytorch-fid computes them."""
+    features = checked_features(features)
     return GaussianStats(
         mean=features.mean(axis=0),
         cov=np.atleast_2d(np.cov(features, rowvar=False, ddof=1)),
@@ -93,12 +90,13 @@ def frechet_distance_from_samples(features1: np.ndarray, features2: np.ndarray) 
     D = 512 features): ``fid_from_features`` takes it whenever a set has fewer samples than
     dimensions; ``frechet_distance`` is its reference twin.
     """
-    centred = []
+    means, centred = [], []
     for features in (features1, features2):
         features = np.asarray(features, dtype=np.float64)
-        centred.append((features - features.mean(axis=0)) / np.sqrt(features.shape[0] - 1))
+        means.append(features.mean(axis=0))
+        centred.append((features - means[-1]) / np.sqrt(features.shape[0] - 1))
     a, b = centred
-    diff = np.asarray(features1, np.float64).mean(axis=0) - np.asarray(features2, np.float64).mean(axis=0)
+    diff = means[0] - means[1]
     trace_sqrt = float(np.linalg.svd(a @ b.T, compute_uv=False).sum())
     return max(float(diff @ diff + (a * a).sum() + (b * b).sum() - 2.0 * trace_sqrt), 0.0)
 
@@ -110,15 +108,20 @@ def fid_from_features(features1: np.ndarray, features2: np.ndarray) -> dict:  # 
     Frechet distance of the two Gaussian fits is still computed exactly, but as an estimate
     of the population FID it is biased upwards; the returned dict says so.
     """
-    stats1, stats2 = gaussian_stats(features1), gaussian_stats(features2)
-    if stats1.dim != stats2.dim:
-        raise ValueError(f"feature dimensions differ: {stats1.dim} vs {stats2.dim}")
-    low_rank = min(stats1.num_samples, stats2.num_samples) < stats1.dim
+    features1, features2 = checked_features(features1), checked_features(features2)
+    (num1, dim), (num2, dim2) = features1.shape, features2.shape
+    if dim != dim2:
+        raise ValueError(f"feature dimensions differ: {dim} vs {dim2}")
+    if min(num1, num2) < dim:  # the covariances are never formed on this path
+        fid = frechet_distance_from_samples(features1, features2)
+    else:
+        stats1, stats2 = gaussian_stats(features1), gaussian_stats(features2)
+        fid = frechet_distance(stats1.mean, stats1.cov, stats2.mean, stats2.cov)
     return {
-        "fid": frechet_distance_from_samples(features1, features2) if low_rank else frechet_distance(stats1.mean, stats1.cov, stats2.mean, stats2.cov),
-        "num_samples": [stats1.num_samples, stats2.num_samples],
-        "feature_dim": stats1.dim,
-        "covariance_full_rank": bool(stats1.full_rank and stats2.full_rank),
+        "fid": fid,
+        "num_samples": [num1, num2],
+        "feature_dim": dim,
+        "covariance_full_rank": bool(num1 > dim and num2 > dim),
     }
 
 

@@ -34,7 +34,11 @@ def psnr(render: np.ndarray, truth: np.ndarray, mask: np.ndarray | None = None) 
         if not mask.any():
             return None
         squared = squared[mask]
-    mse = float(squared.mean())
+    return psnr_from_mse(float(squared.mean()))
+
+
+def psnr_from_mse(mse: float) -> float:
+    """PSNR in dB of a mean squared error of [0,1] images; +inf for 0."""
     return float("inf") if mse == 0.0 else float(-10.0 * np.log10(mse))
 
 

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError
-from recondreamer.evaluation.image_metrics import psnr
+from recondreamer.evaluation.image_metrics import psnr_from_mse
 from recondreamer.io import OutputPathError, write_json_atomic
 from recondreamer.recon.base import GaussianSceneModel
 from recondreamer.recon.checkpoint import (
@@ -137,7 +137,7 @@ class Trainer:
             gaussians.active_sh_degree += 1
         return {
             "loss": float(loss.detach()),
-            "psnr": psnr(render["rgb"].detach().cpu().numpy(), image.cpu().numpy()),
+            "psnr": psnr_from_mse(float(((render["rgb"].detach() - image) ** 2).mean())),  # on the device: one scalar leaves it
             **parts,
         }
 
