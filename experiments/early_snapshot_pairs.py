@@ -31,6 +31,7 @@ from pathlib import Path
 ARMS = {"late": (250, 500), "early": (100, 250)}
 SNAPSHOTS = (100, 250, 500)
 CORPUS_FIRST_SEED, GATE_SEEDS = 10000, (20000, 20001, 20002, 20003)
+SHIPPED = Path(__file__).resolve().parents[1] / "recondreamer" / "weights"
 
 
 def run(command: list[str], log: Path) -> None:
@@ -78,6 +79,55 @@ def arm_pairs(run_dir: Path, scene: Path, out: Path, stages: tuple[int, ...]) ->
     make_pairs_for_run(view, out, len(stages), scene_dir=scene)
 
 
+def street_run_pairs(scene: Path, run_dir: Path, pairs: Path, trajectories: tuple[str, ...], logs: Path) -> Path:
+    """Street Gaussians on ``scene`` (the default preset, 700 iterations) and its pairs along ``trajectories``
+    from 4 snapshots (and, on novel trajectories, the final model)."""
+    if not (run_dir / "model.pt").is_file():
+        run(["train-recon", "--scene", str(scene), "--model", "street", "--out", str(run_dir), "--preset", "default",
+             "--seed", "0", "--iterations", "700", "--threads", "1"], logs / f"recon_{scene.name}.log")
+    if not pairs.exists():
+        run(["make-pairs", "--run", str(run_dir), "--scene", str(scene), "--out", str(pairs), "--stages", "4",
+             "--trajectories", *trajectories, "--threads", "1"], logs / f"pairs_{scene.name}.log")
+    return pairs
+
+
+def gate_pairs(scene: Path, out: Path) -> Path:
+    """A gate scene's run and its pairs along original, shift@3 and shift@6, as the foundation's gate makes them."""
+    return street_run_pairs(scene, out / "gate_runs" / scene.name, out / "gate_pairs" / scene.name, ("original", "shift@3", "shift@6"), out / "logs")
+
+
+def train_dd2_mask(pairs: list[Path], checkpoint: Path, steps: int, out: Path) -> Path:
+    """A dd2_mask DriveRestorer from the shipped dd2 world model, with the foundation's recipe (EMA 0.999)."""
+    if not checkpoint.is_file():
+        run(["train-restorer", "--arch", "dd2_mask", "--world-model", str(SHIPPED / "world_model_dd2.pt"), "--pairs", *map(str, pairs),
+             "--out", str(checkpoint), "--steps", str(steps), "--ema-decay", "0.999", "--seed", "0", "--threads", "1"],
+            out / "logs" / f"{checkpoint.stem}.log")
+    return checkpoint
+
+
+def print_gates(restorers: dict[str, Path], sources: dict[str, str], out: Path) -> dict:
+    """Measure each restorer with the foundation's gate code on ``out/gate_pairs``; print and save the table."""
+    import torch
+
+    from recondreamer.foundation import gates as gate_code
+    from recondreamer.generative.data import find_pairs_files
+
+    torch.set_num_threads(2)
+    pairs = find_pairs_files(sorted((out / "gate_pairs").iterdir()))
+    table = {}
+    print(f"{'restorer':10} {'pairs from':24} {'trajectory':10} {'clips':>5} {'render':>7} {'restored':>8} {'gain':>6} {'flicker':>13}")
+    for name, checkpoint in restorers.items():
+        result = gate_code.restorer_gate(checkpoint, pairs)
+        table[name] = result
+        for trajectory in (*gate_code.NOVEL_GATE_TRAJECTORIES, "original"):
+            row = result.get(trajectory)
+            if row:
+                print(f"{name:10} {sources[name]:24} {trajectory:10} {row['clips']:5d} {row['render_psnr']:7.2f} {row['restored_psnr']:8.2f} "
+                      f"{row['gain_db']:+6.2f} {row['render_flicker']:6.2f}->{row['restored_flicker']:5.2f}")
+    (out / "gates.json").write_text(json.dumps(table, indent=1, default=str))
+    return table
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable)")
@@ -102,54 +152,16 @@ def main() -> int:
         for arm, stages in ARMS.items():
             subprocess.run([sys.executable, __file__, "--_pairs", str(run_dir), str(scene), str(out / f"pairs_{arm}"), *map(str, stages)], check=True)
 
-    def gate_job(scene: Path) -> None:
-        run_dir = out / "gate_runs" / scene.name
-        if not (run_dir / "model.pt").is_file():
-            run(["train-recon", "--scene", str(scene), "--model", "street", "--out", str(run_dir), "--preset", "default",
-                 "--seed", "0", "--iterations", "700", "--threads", "1"], out / "logs" / f"gate_recon_{scene.name}.log")
-        pairs = out / "gate_pairs" / scene.name
-        if not pairs.exists():
-            run(["make-pairs", "--run", str(run_dir), "--scene", str(scene), "--out", str(pairs), "--stages", "4",
-                 "--trajectories", "original", "shift@3", "shift@6", "--threads", "1"], out / "logs" / f"gate_pairs_{scene.name}.log")
-
     with ThreadPoolExecutor(2) as pool:
         list(pool.map(corpus_job, scenes))
-        list(pool.map(gate_job, gate_scenes))
-
-    root = Path(__file__).resolve().parents[1]
-    world_model = root / "recondreamer" / "weights" / "world_model_dd2.pt"
-
-    def restorer_job(arm: str) -> Path:
-        checkpoint = out / f"restorer_{arm}.pt"
-        if not checkpoint.is_file():
-            run(["train-restorer", "--arch", "dd2_mask", "--world-model", str(world_model), "--pairs", str(out / f"pairs_{arm}"),
-                 "--out", str(checkpoint), "--steps", str(args.steps), "--ema-decay", "0.999", "--seed", "0", "--threads", "1"],
-                out / "logs" / f"restorer_{arm}.log")
-        return checkpoint
+        list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
 
     with ThreadPoolExecutor(2) as pool:
-        restorers = dict(zip(ARMS, pool.map(restorer_job, ARMS)))
-    restorers["shipped"] = root / "recondreamer" / "weights" / "restorer_dd2_mask.pt"
+        restorers = dict(zip(ARMS, pool.map(lambda arm: train_dd2_mask([out / f"pairs_{arm}"], out / f"restorer_{arm}.pt", args.steps, out), ARMS)))
+    restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
 
-    import torch
-
-    from recondreamer.foundation import gates as gate_code
-    from recondreamer.generative.data import find_pairs_files
-
-    torch.set_num_threads(2)
-    pairs = find_pairs_files(sorted((out / "gate_pairs").iterdir()))
-    table = {}
-    print(f"{'restorer':8} {'pairs from':12} {'trajectory':10} {'clips':>5} {'render':>7} {'restored':>8} {'gain':>6} {'flicker':>13}")
-    for name, checkpoint in restorers.items():
-        result = gate_code.restorer_gate(checkpoint, pairs)
-        table[name] = result
-        source = "foundation" if name == "shipped" else "+".join(map(str, ARMS[name]))
-        for trajectory in (*gate_code.NOVEL_GATE_TRAJECTORIES, "original"):
-            row = result.get(trajectory)
-            if row:
-                print(f"{name:8} {source:12} {trajectory:10} {row['clips']:5d} {row['render_psnr']:7.2f} {row['restored_psnr']:8.2f} "
-                      f"{row['gain_db']:+6.2f} {row['render_flicker']:6.2f}->{row['restored_flicker']:5.2f}")
-    (out / "gates.json").write_text(json.dumps(table, indent=1, default=str))
+    sources = {arm: "steps " + " + ".join(map(str, stages)) for arm, stages in ARMS.items()} | {"shipped": "foundation"}
+    print_gates(restorers, sources, out)
     return 0
 
 

@@ -1,0 +1,120 @@
+"""Cycle pairs: novel-view degradation along the recorded trajectory, without novel-view truth.
+
+    python experiments/cycle_pairs.py --out results/novel-view-pairs [--scenes 16] [--steps 3000]
+
+Run it on the folder of experiments/novel_view_pairs.py (it reuses that folder's corpus scenes,
+Street Gaussians runs, pairs and gate pairs, and makes what is missing); docs/foundation.md cites
+its table.
+
+The paper's DriveRestorer learns from renders of under-trained reconstructions along the recorded
+trajectory; their degradation (blur of a model that has not converged) is not the one it meets
+along shift@3 and shift@6 (a converged model seen from where it was never trained). A cycle makes
+the second kind with the recorded frames as truth (Difix3D+ builds training pairs this way): the
+corpus scene's Street Gaussians run A renders the lateral drive shift@K; a second run B trains on
+those renders only (at the shifted cameras, with the drive's LiDAR depth projected into them); B
+then renders the recorded trajectory, K metres away from everything it was trained on, and those
+renders pair with the recorded frames. No frame of any lateral drive is used.
+
+This trains one dd2_mask restorer from the shipped dd2 world model with the foundation's recipe and
+budget (3000 steps, EMA 0.999) on the cycle pairs of K = 3 and 6 (B's snapshot at step 350 and its
+final model) together with the foundation's own pairs (A's snapshots along the recorded
+trajectory), and measures it beside the shipped dd2_mask restorer with the foundation's gate code
+on the gate scenes. Every step skips what exists, so a stopped run continues; two jobs run side by
+side.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from early_snapshot_pairs import (  # the sibling experiments' steps, shared
+    CORPUS_FIRST_SEED,
+    GATE_SEEDS,
+    SHIPPED,
+    gate_pairs,
+    print_gates,
+    street_run_pairs,
+    synth,
+    train_dd2_mask,
+)
+
+CYCLE_SHIFTS = ("shift@3", "shift@6")
+CYCLE_ITERATIONS, CYCLE_SNAPSHOT = 700, 350
+
+
+def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Path) -> Path:
+    """Run B on run A's renders along ``shift``; B's renders along the recorded trajectory as pairs."""
+    target = pairs / f"{scene_dir.name}__{shift}.npz"
+    if target.exists():
+        return target
+    import numpy as np
+    import torch
+
+    from recondreamer.generative.pairs import _write_trajectory_pairs
+    from recondreamer.recon import load_model, render_trajectory
+    from recondreamer.recon.config import make_config
+    from recondreamer.recon.data import TrainingSet, TrainingView, lidar_depth_map
+    from recondreamer.recon.trainer import train_scene
+    from recondreamer.scene import load_scene
+    from recondreamer.scene.trajectories import trajectory_cam_to_world
+
+    torch.set_num_threads(1)
+    scene = load_scene(scene_dir)
+    cams = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, shift)
+    renders = render_trajectory(load_model(run_a / "model.pt"), scene, cams)
+    views = [
+        TrainingView(cam_to_world=np.asarray(cam, dtype=np.float64), timestamp=float(scene.timestamps[t]), image=renders[t],
+                     depth=lidar_depth_map(scene.lidar(t), scene.K, cam, scene.width, scene.height), source="cycle", frame=t)
+        for t, cam in enumerate(cams)
+    ]
+    config = dataclasses.replace(make_config("street", "default"), iterations=CYCLE_ITERATIONS, snapshot_steps=(CYCLE_SNAPSHOT,))
+    final = train_scene(scene, config, run_b, training_set=TrainingSet(scene.K, scene.width, scene.height, views))
+    models = {CYCLE_SNAPSHOT: load_model(run_b / "snapshots" / f"step_{CYCLE_SNAPSHOT:06d}.pt"), CYCLE_ITERATIONS: final}
+    return _write_trajectory_pairs(run_b, scene, "original", models, pairs)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=Path, required=True, help="working folder (resumable; experiments/novel_view_pairs.py's)")
+    parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
+    parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.WARNING)
+    out = args.out
+    for folder in ("logs", "corpus", "gate_scenes", "runs", "pairs", "gate_runs", "gate_pairs", "cycle_runs", "pairs_cycle"):
+        (out / folder).mkdir(parents=True, exist_ok=True)
+    corpus = [(CORPUS_FIRST_SEED + i, f"corpus-{i:03d}") for i in range(args.scenes)]
+    gates = [(seed, f"gate-{i:03d}") for i, seed in enumerate(GATE_SEEDS)]
+
+    def cycle_job(job: tuple[Path, str]) -> None:
+        scene, shift = job
+        run_b = out / "cycle_runs" / scene.name / shift
+        with open(out / "logs" / f"cycle_{scene.name}_{shift}.log", "w") as log:
+            subprocess.run([sys.executable, __file__, "--_cycle", str(scene), str(out / "runs" / scene.name), shift, str(run_b), str(out / "pairs_cycle")],
+                           check=True, stdout=log, stderr=subprocess.STDOUT)
+
+    with ThreadPoolExecutor(2) as pool:
+        scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "corpus" / s[1], True), corpus))
+        gate_scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "gate_scenes" / s[1], True), gates))
+        list(pool.map(lambda scene: street_run_pairs(scene, out / "runs" / scene.name, out / "pairs" / scene.name, ("original",), out / "logs"), scenes))
+        list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
+        list(pool.map(cycle_job, [(scene, shift) for scene in scenes for shift in CYCLE_SHIFTS]))
+    recorded = [out / "pairs" / scene.name / f"{scene.name}__{scene.name}.npz" for scene in scenes]
+    restorers = {"cycle": train_dd2_mask([*recorded, out / "pairs_cycle"], out / "restorer_cycle.pt", args.steps, out),
+                 "shipped": SHIPPED / "restorer_dd2_mask.pt"}
+    print_gates(restorers, {"cycle": "original + cycle 3, 6", "shipped": "foundation (original)"}, out)
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--_cycle":
+        cycle_pairs(Path(sys.argv[2]), Path(sys.argv[3]), sys.argv[4], Path(sys.argv[5]), Path(sys.argv[6]))
+    else:
+        sys.exit(main())
