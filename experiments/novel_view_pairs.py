@@ -58,22 +58,24 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
     parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default both)")
     args = parser.parse_args()
+    arms = {arm: ARMS[arm] for arm in args.arms}
     logging.basicConfig(level=logging.WARNING)
     out = args.out
     for folder in ("logs", "corpus", "gate_scenes", "runs", "pairs", "gate_runs", "gate_pairs"):
         (out / folder).mkdir(parents=True, exist_ok=True)
     corpus = [(CORPUS_FIRST_SEED + i, f"corpus-{i:03d}") for i in range(args.scenes)]
     gates = [(seed, f"gate-{i:03d}") for i, seed in enumerate(GATE_SEEDS)]
-    trajectories = tuple(dict.fromkeys(name for arm in ARMS.values() for name in arm))
+    trajectories = tuple(dict.fromkeys(name for arm in arms.values() for name in arm))
     with ThreadPoolExecutor(2) as pool:
         scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "corpus" / s[1], True), corpus))
         gate_scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "gate_scenes" / s[1], True), gates))
         pairs = list(pool.map(lambda scene: street_run_pairs(scene, out / "runs" / scene.name, out / "pairs" / scene.name, trajectories, out / "logs"), scenes))
         list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
-        restorers = dict(zip(ARMS, pool.map(lambda arm: train_dd2_mask(arm_files(pairs, ARMS[arm]), out / f"restorer_{arm}.pt", args.steps, out), ARMS)))
+        restorers = dict(zip(arms, pool.map(lambda arm: train_dd2_mask(arm_files(pairs, arms[arm]), out / f"restorer_{arm}.pt", args.steps, out), arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
-    sources = {arm: " + ".join(names) for arm, names in ARMS.items()} | {"shipped": "foundation (original)"}
+    sources = {arm: " + ".join(names) for arm, names in arms.items()} | {"shipped": "foundation (original)"}
     print_gates(restorers, sources, out)
     return 0
 
