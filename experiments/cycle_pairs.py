@@ -1,6 +1,6 @@
 """Cycle pairs: novel-view degradation along the recorded trajectory, without novel-view truth.
 
-    python experiments/cycle_pairs.py --out results/novel-view-pairs [--scenes 16] [--steps 3000]
+    python experiments/cycle_pairs.py --out results/novel-view-pairs [--scenes 16] [--steps 3000] [--arms cycle view]
 
 Run it on the folder of experiments/novel_view_pairs.py (it reuses that folder's corpus scenes,
 Street Gaussians runs, pairs and gate pairs, and makes what is missing); docs/foundation.md cites
@@ -15,12 +15,17 @@ those renders only (at the shifted cameras, with the drive's LiDAR depth project
 then renders the recorded trajectory, K metres away from everything it was trained on, and those
 renders pair with the recorded frames. No frame of any lateral drive is used.
 
-This trains one dd2_mask restorer from the shipped dd2 world model with the foundation's recipe and
+This trains dd2_mask restorers from the shipped dd2 world model with the foundation's recipe and
 budget (3000 steps, EMA 0.999) on the cycle pairs of K = 3 and 6 (B's snapshot at step 350 and its
 final model) together with the foundation's own pairs (A's snapshots along the recorded
-trajectory), and measures it beside the shipped dd2_mask restorer with the foundation's gate code
-on the gate scenes. Every step skips what exists, so a stopped run continues; two jobs run side by
-side.
+trajectory), and measures them beside the shipped dd2_mask restorer with the foundation's gate code
+on the gate scenes:
+  cycle:  the paper's inputs (render, boxes, map);
+  view:   beyond the paper, also each frame's reference view (``train-restorer --view-condition``):
+          the view the reconstruction was trained on at the same timestamp. At the gate that is the
+          recorded frame beside a novel-trajectory render; in a cycle pair it is A's shift@K render
+          beside B's render (what B was trained on). The foundation's pairs have none.
+Every step skips what exists, so a stopped run continues; two jobs run side by side.
 """
 
 from __future__ import annotations
@@ -47,10 +52,12 @@ from early_snapshot_pairs import (  # the sibling experiments' steps, shared
 
 CYCLE_SHIFTS = ("shift@3", "shift@6")
 CYCLE_ITERATIONS, CYCLE_SNAPSHOT = 700, 350
+ARMS = {"cycle": (), "view": ("--view-condition",)}  # restorer name -> extra train-restorer flags
 
 
 def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Path) -> Path:
-    """Run B on run A's renders along ``shift``; B's renders along the recorded trajectory as pairs."""
+    """Run B on run A's renders along ``shift``; B's renders along the recorded trajectory as pairs,
+    with A's renders as their reference views (what B was trained on at each timestamp)."""
     target = pairs / f"{scene_dir.name}__{shift}.npz"
     if target.exists():
         return target
@@ -74,10 +81,13 @@ def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Pa
                      depth=lidar_depth_map(scene.lidar(t), scene.K, cam, scene.width, scene.height), source="cycle", frame=t)
         for t, cam in enumerate(cams)
     ]
-    config = dataclasses.replace(make_config("street", "default"), iterations=CYCLE_ITERATIONS, snapshot_steps=(CYCLE_SNAPSHOT,))
-    final = train_scene(scene, config, run_b, training_set=TrainingSet(scene.K, scene.width, scene.height, views))
+    if (run_b / "model.pt").is_file():
+        final = load_model(run_b / "model.pt")
+    else:
+        config = dataclasses.replace(make_config("street", "default"), iterations=CYCLE_ITERATIONS, snapshot_steps=(CYCLE_SNAPSHOT,))
+        final = train_scene(scene, config, run_b, training_set=TrainingSet(scene.K, scene.width, scene.height, views))
     models = {CYCLE_SNAPSHOT: load_model(run_b / "snapshots" / f"step_{CYCLE_SNAPSHOT:06d}.pt"), CYCLE_ITERATIONS: final}
-    return _write_trajectory_pairs(run_b, scene, "original", models, pairs)
+    return _write_trajectory_pairs(run_b, scene, "original", models, pairs, view=np.stack(renders))
 
 
 def main() -> int:
@@ -85,6 +95,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable; experiments/novel_view_pairs.py's)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
     parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default both)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     out = args.out
@@ -106,10 +117,12 @@ def main() -> int:
         list(pool.map(lambda scene: street_run_pairs(scene, out / "runs" / scene.name, out / "pairs" / scene.name, ("original",), out / "logs"), scenes))
         list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
         list(pool.map(cycle_job, [(scene, shift) for scene in scenes for shift in CYCLE_SHIFTS]))
-    recorded = [out / "pairs" / scene.name / f"{scene.name}__{scene.name}.npz" for scene in scenes]
-    restorers = {"cycle": train_dd2_mask([*recorded, out / "pairs_cycle"], out / "restorer_cycle.pt", args.steps, out),
-                 "shipped": SHIPPED / "restorer_dd2_mask.pt"}
-    print_gates(restorers, {"cycle": "original + cycle 3, 6", "shipped": "foundation (original)"}, out)
+        recorded = [out / "pairs" / scene.name / f"{scene.name}__{scene.name}.npz" for scene in scenes]
+        restorers = dict(zip(args.arms, pool.map(
+            lambda arm: train_dd2_mask([*recorded, out / "pairs_cycle"], out / f"restorer_{arm}.pt", args.steps, out, ARMS[arm]), args.arms)))
+    restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
+    sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "shipped": "foundation (original)"}
+    print_gates(restorers, sources, out)
     return 0
 
 

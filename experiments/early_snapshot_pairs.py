@@ -96,11 +96,12 @@ def gate_pairs(scene: Path, out: Path) -> Path:
     return street_run_pairs(scene, out / "gate_runs" / scene.name, out / "gate_pairs" / scene.name, ("original", "shift@3", "shift@6"), out / "logs")
 
 
-def train_dd2_mask(pairs: list[Path], checkpoint: Path, steps: int, out: Path) -> Path:
-    """A dd2_mask DriveRestorer from the shipped dd2 world model, with the foundation's recipe (EMA 0.999)."""
+def train_dd2_mask(pairs: list[Path], checkpoint: Path, steps: int, out: Path, flags: tuple[str, ...] = ()) -> Path:
+    """A dd2_mask DriveRestorer from the shipped dd2 world model, with the foundation's recipe (EMA 0.999)
+    and any further train-restorer ``flags``."""
     if not checkpoint.is_file():
         run(["train-restorer", "--arch", "dd2_mask", "--world-model", str(SHIPPED / "world_model_dd2.pt"), "--pairs", *map(str, pairs),
-             "--out", str(checkpoint), "--steps", str(steps), "--ema-decay", "0.999", "--seed", "0", "--threads", "1"],
+             "--out", str(checkpoint), "--steps", str(steps), "--ema-decay", "0.999", "--seed", "0", "--threads", "1", *flags],
             out / "logs" / f"{checkpoint.stem}.log")
     return checkpoint
 

@@ -43,6 +43,7 @@ def test_pairs_of_original_and_novel_trajectories(run, tmp_path):
     assert original["stages"].tolist() == [2, 4] and original["degraded"].shape[0] == 2
     assert np.array_equal(original["gt"], np.stack([scene.image(t) for t in range(scene.num_frames)]))
     assert str(original["trajectory"]) == "original"
+    assert "view" not in original  # the recorded frames are its truth: no reference view
 
     # Novel trajectory: the snapshots and the final model, rendered in the shifted cameras,
     # against the true novel views, with structure maps drawn in those cameras.
@@ -54,6 +55,8 @@ def test_pairs_of_original_and_novel_trajectories(run, tmp_path):
     assert np.array_equal(shifted["structure"], scene_structure(scene, cams))
     assert not np.array_equal(shifted["structure"], original["structure"])
     assert str(shifted["trajectory"]) == novel and str(shifted["scene_id"]) == scene.scene_id
+    # Reference views (view-conditioned restorers): the recorded frames the reconstruction trained on.
+    assert np.array_equal(shifted["view"], original["gt"])
 
 
 def test_novel_trajectory_without_true_views_is_refused(run, tmp_path):

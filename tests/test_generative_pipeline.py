@@ -67,7 +67,22 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path, capsys):
     assert default["restore"]["samples"] == 4
     assert default["train"]["pixel_loss_weight"] == 0.0
 
+    # Beyond the paper: a view-conditioned restorer learns from the pairs files that hold reference views.
+    assert main(["train-restorer", "--arch", "dd2_mask", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
+                 "--out", str(tmp_path / "r_view_none.pt"), "--view-condition", *train]) == 1
+    assert "none of the pairs has one" in capsys.readouterr().err and not (tmp_path / "r_view_none.pt").exists()
+    with np.load(pairs / "a__run.npz") as content:
+        np.savez_compressed(pairs / "a__run__shift@3.npz", **dict(content), view=gt[::-1].copy(), trajectory=np.array("shift@3"))
+    assert main(["train-restorer", "--arch", "dd2_mask", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
+                 "--out", str(tmp_path / "r_view.pt"), "--view-condition", *train]) == 0
+    assert load_checkpoint(tmp_path / "r_view.pt", "restorer")["config"]["unet"]["view_condition"] is True
     np.save(tmp_path / "renders.npy", _blur(gt))
+    for trajectory in ("shift@3", "original"):  # with the recorded frames as views, and without views
+        assert main(["restore", "--restorer", str(tmp_path / "r_view.pt"), "--scene", str(scene.path), "--renders",
+                     str(tmp_path / "renders.npy"), "--trajectory", trajectory, "--out", str(tmp_path / f"restored_view_{trajectory}"),
+                     "--samples", "1", *common]) == 0
+    (pairs / "a__run__shift@3.npz").unlink()
+
     assert main(["restore", "--restorer", str(tmp_path / "r.pt"), "--scene", str(scene.path), "--renders", str(tmp_path / "renders.npy"),
                  "--trajectory", "shift@3", "--out", str(tmp_path / "restored"), "--sample-steps", "2", "--samples", "1", *common]) == 0
     assert len(list((tmp_path / "restored").glob("*.png"))) == scene.num_frames

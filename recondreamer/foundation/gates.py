@@ -30,8 +30,9 @@ NOVEL_GATE_TRAJECTORIES = ("shift@3", "shift@6")
 
 
 def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[tuple]]:
-    """Trajectory -> [(scene_id, render (T,H,W,3), truth, structure)]: for novel trajectories the
-    render of the final model (the last stage), for the original trajectory every stage."""
+    """Trajectory -> [(scene_id, render (T,H,W,3), truth, structure, view)]: for novel trajectories
+    the render of the final model (the last stage), for the original trajectory every stage;
+    ``view`` is the file's reference views (the recorded frames, for novel trajectories) or None."""
     from recondreamer.generative.data import load_pairs_file
 
     clips: dict[str, list[tuple]] = {}
@@ -41,7 +42,7 @@ def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[t
         structure = content["structure"] if uses_structure else None
         stages = range(len(content["degraded"])) if trajectory == "original" else [int(np.argmax(content["stages"]))]
         for stage in stages:
-            clips.setdefault(trajectory, []).append((str(content["scene_id"]), content["degraded"][stage], content["gt"], structure))
+            clips.setdefault(trajectory, []).append((str(content["scene_id"]), content["degraded"][stage], content["gt"], structure, content.get("view")))
     return clips
 
 
@@ -57,10 +58,13 @@ def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
     seen = sorted({scene for items in clips.values() for scene, *_ in items} & trained_on)
     if seen:
         raise RecondreamerError(f"{path}: the restorer was trained on gate scenes {seen}; gates need scenes no model saw")
+    views = restorer.unet_config.view_condition
+    if views and any(view is None for trajectory, items in clips.items() if trajectory != "original" for *_, view in items):
+        raise RecondreamerError(f"{path}: a view-conditioned restorer needs gate pairs with reference views (make-pairs writes them on novel trajectories)")
     result: dict = {"arch": restorer.arch}
     for trajectory, items in sorted(clips.items()):
-        scores = summarise([score_clip(pairs_kind(trajectory), render, restore_clip(restorer, render, structure), truth)
-                            for _, render, truth, structure in items])
+        scores = summarise([score_clip(pairs_kind(trajectory), render, restore_clip(restorer, render, structure, view=view if views else None), truth)
+                            for _, render, truth, structure, view in items])
         render_psnr, restored_psnr = scores["psnr_degraded"], scores["psnr_restored"]
         render_flicker, restored_flicker = scores["flicker_degraded"], scores["flicker_restored"]
         result[trajectory] = {

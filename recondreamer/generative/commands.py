@@ -94,6 +94,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="residual blocks per UNet level, down and up (default: the --init-restorer's, else the world model's: 1); blocks past those "
         "start as the identity, so a deeper restorer can be grown from a trained one",
     )
+    p.add_argument(
+        "--view-condition", action="store_true",
+        help="beyond the paper: also condition on each frame's reference view (the view the reconstruction was trained on at "
+        "the same timestamp), from the pairs files' 'view' arrays (novel-trajectory pairs hold the recorded frames; pairs "
+        "without views count as having none)",
+    )
     add_config_options(
         p, TrainConfig, RESTORER_TRAIN_OPTIONS, title="training (TrainConfig)",
         defaults={"*": "the world model's", "timestep_power": f"{RESTORER_TIMESTEP_POWER:g}", "pixel_loss_weight": "0"},
@@ -257,7 +263,7 @@ def run_train_restorer(args: argparse.Namespace) -> int:
     sequences = load_pair_sequences(files, world.autoencoder, world.unet_config.uses_structure, keep_frames=keep_frames)
     stats = train_restorer(
         world, args.arch, sequences, train, masks, restore, args.out, args.world_model, args.target_space, device, args.init_restorer,
-        args.blocks_per_level,
+        args.blocks_per_level, args.view_condition,
     )
     LOG.info("wrote %s: final loss %.4f, %.0f ms/step", args.out, stats["final_loss"], stats["ms_per_step"])
     return 0
@@ -311,9 +317,11 @@ def run_restore(args: argparse.Namespace) -> int:
         raise RecondreamerError(f"{args.renders}: renders {renders.shape} do not match the scene's frames {reference.shape} (T,H,W,3)")
     start = time.perf_counter()
     sampling = apply_options(args, restorer.restore_config, RESTORE_CLIP_OPTIONS)
+    # A view-conditioned restorer sees, on a novel trajectory, the recorded frames of the same timestamps.
+    view = reference if restorer.unet_config.view_condition and args.trajectory != "original" else None
     restored = restore_clip(
         restorer, renders, structure, num_steps=sampling.sample_steps, overlap=sampling.overlap, strength=sampling.strength,
-        seed=sampling.seed, samples=sampling.samples,
+        seed=sampling.seed, samples=sampling.samples, view=view,
     )
     seconds = time.perf_counter() - start
     LOG.info("restored %d frames with %s on %s in %.1f s", len(restored), restorer.arch, restorer.device, seconds)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from recondreamer.configs import from_dict
 from recondreamer.errors import ConfigValueError
 
 ARCHS = ("sd", "svd", "dd2", "dd2_mask")
@@ -71,6 +72,10 @@ class UNetConfig:
     structure_hidden: int = 16
     downsample_factor: int = 4  # pixel-to-latent factor (structure maps come at pixel resolution)
     degraded_condition: bool = False  # restorer: degraded-video latent as an extra (zero-initialised) input
+    # Restorer beyond the paper: per frame, the latent of the view the reconstruction was trained on
+    # at the same timestamp (the recorded frame, for a novel-trajectory render) as a further
+    # zero-initialised input; frames without one get zeros (unet.LatentUNet).
+    view_condition: bool = False
 
     @property
     def temporal(self) -> bool:
@@ -79,6 +84,16 @@ class UNetConfig:
     @property
     def uses_structure(self) -> bool:
         return self.arch in ("dd2", "dd2_mask")
+
+
+# UNet fields added after checkpoints had been published, with the value that rebuilds those
+# checkpoints as they were trained; a stored config without such a field gets this value.
+UNET_FIELDS_ADDED = {"view_condition": False}
+
+
+def unet_config_from_dict(values: dict) -> UNetConfig:
+    """A stored UNet config (``configs.to_dict``), including those written before ``UNET_FIELDS_ADDED``."""
+    return from_dict(UNetConfig, {**UNET_FIELDS_ADDED, **values})
 
 
 @dataclass(frozen=True)

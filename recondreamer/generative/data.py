@@ -80,6 +80,7 @@ class Sequence:
     reference: torch.Tensor  # (T,c,h,w) latents of the frames a clip is conditioned on (its own drive's)
     structure: np.ndarray | None  # (T,S,H,W) uint8 structure maps in the target camera
     degraded: torch.Tensor | None = None  # (K,T,c,h,w) latents of degraded renders (pairs)
+    view: torch.Tensor | None = None  # (T,c,h,w) latents of the pairs' reference views (pairs files with ``view``)
     degraded_frames: np.ndarray | None = None  # (K,T,H,W,3) uint8, kept for masks and image-space losses
     target_frames: np.ndarray | None = None  # (T,H,W,3) uint8, kept for image-space losses
     sky_masks: np.ndarray | None = None  # (T,H,W) bool
@@ -163,6 +164,8 @@ def load_pairs_file(path: Path) -> dict:
     gt, degraded = content["gt"], content["degraded"]
     if gt.ndim != 4 or degraded.ndim != 5 or degraded.shape[1:] != gt.shape:
         raise RecondreamerError(f"{path}: degraded renders {degraded.shape} do not match ground truth {gt.shape} as (K,T,H,W,3)")
+    if "view" in content and content["view"].shape != gt.shape:
+        raise RecondreamerError(f"{path}: reference views {content['view'].shape} do not match ground truth {gt.shape} as (T,H,W,3)")
     if "sky" in content:
         content["sky"] = content["sky"].astype(bool, copy=False)
     return content
@@ -198,8 +201,9 @@ def autoencoder_digest(autoencoder: Autoencoder) -> str:
     return digest.hexdigest()[:12]
 
 
-def pair_latents(path: Path, content: dict, autoencoder: Autoencoder, digest: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """Latents of a pairs file's ground truth (T,c,h,w) and degraded renders (K,T,c,h,w).
+def pair_latents(path: Path, content: dict, autoencoder: Autoencoder, digest: str) -> dict[str, torch.Tensor]:
+    """Latents of a pairs file: ``gt`` (T,c,h,w), ``degraded`` (K,T,c,h,w) and, where the file has
+    reference views, ``view`` (T,c,h,w).
 
     Encoding costs about 30 CPU ms per frame, minutes for a set of pairs, and every restorer
     trained on the same pairs and autoencoder needs the same latents: they are cached next to
@@ -209,14 +213,16 @@ def pair_latents(path: Path, content: dict, autoencoder: Autoencoder, digest: st
     cache = path.with_name(f"{path.stem}.latents-{digest}.pt")
     if cache.is_file():
         cached = torch.load(cache, map_location="cpu", weights_only=True, mmap=True)
-        if cached["gt"].shape[0] == content["gt"].shape[0] and cached["degraded"].shape[:2] == content["degraded"].shape[:2]:
-            return cached["gt"], cached["degraded"]
-    gt_latents = encode_frames(autoencoder, content["gt"])
-    degraded_latents = torch.stack([encode_frames(autoencoder, stage) for stage in content["degraded"]])
+        if (cached["gt"].shape[0] == content["gt"].shape[0] and cached["degraded"].shape[:2] == content["degraded"].shape[:2]
+                and ("view" in cached) == ("view" in content)):
+            return cached
+    latents = {"gt": encode_frames(autoencoder, content["gt"]),
+               "degraded": torch.stack([encode_frames(autoencoder, stage) for stage in content["degraded"]])}
+    if "view" in content:
+        latents["view"] = encode_frames(autoencoder, content["view"])
     with atomic_path(cache) as tmp:
-        torch.save({"gt": gt_latents, "degraded": degraded_latents}, tmp)
-    cached = torch.load(cache, map_location="cpu", weights_only=True, mmap=True)  # memory-mapped like a cache hit
-    return cached["gt"], cached["degraded"]
+        torch.save(latents, tmp)
+    return torch.load(cache, map_location="cpu", weights_only=True, mmap=True)  # memory-mapped like a cache hit
 
 
 def restored_pair_frames(
@@ -277,16 +283,17 @@ def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_struct
     for path in files:
         content = load_pairs_file(path)
         degraded_shape = content["degraded"].shape  # (K,T,H,W,3)
-        gt_latents, degraded_latents = pair_latents(path, content, autoencoder, digest)
+        latents = pair_latents(path, content, autoencoder, digest)
         mapped = mapped_pair_arrays(path, content)
         sequences.append(
             Sequence(
                 name=path.stem,
                 scene_id=str(content["scene_id"]),
-                target=gt_latents,
-                reference=gt_latents,  # unused by restorers (their reference is the degraded clip start)
+                target=latents["gt"],
+                reference=latents["gt"],  # unused by restorers (their reference is the degraded clip start)
                 structure=mapped["structure"] if with_structure else None,
-                degraded=degraded_latents,
+                degraded=latents["degraded"],
+                view=latents.get("view"),
                 degraded_frames=mapped["degraded"] if keep_frames else None,
                 target_frames=mapped["gt"] if keep_frames else None,
                 sky_masks=mapped.get("sky"),

@@ -115,6 +115,7 @@ def _sample_clip(
     overlap: int,
     strength: float,
     noise: torch.Tensor,  # (K,T,c,h,w) one clip of noise per sample (clip_noise)
+    view_latents: torch.Tensor | None = None,  # (T,c,h,w) reference views (view-conditioned restorers)
 ) -> torch.Tensor:  # (T,c,h,w) the mean of the K samples
     num_frames, samples = reference_latents.shape[0], noise.shape[0]
     # Conditions and noise go to the model's device.
@@ -123,6 +124,7 @@ def _sample_clip(
     reference_latents = reference_latents.to(device)
     structure = None if structure is None else structure.to(device)
     degraded_latents = None if degraded_latents is None else degraded_latents.to(device)
+    view_latents = None if view_latents is None else view_latents.to(device)
     unet = model.unet.eval()
 
     def sample_window(start: int, end: int) -> torch.Tensor:
@@ -130,12 +132,13 @@ def _sample_clip(
         length = end - start
         reference = reference_latents[start][None].expand(samples, *reference_latents.shape[1:])
         degraded = None if degraded_latents is None else degraded_latents[start:end][None].expand(samples, length, *degraded_latents.shape[1:])
+        view = None if view_latents is None else view_latents[start:end][None].expand(samples, length, *view_latents.shape[1:])
         features = None
         if structure is not None:
             features = unet.encode_structure(structure[start:end][None], (1, length, *noise.shape[2:])).repeat(samples, 1, 1, 1)
 
         def model_fn(x: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
-            return unet(x, timesteps, reference, degraded=degraded, structure_features=features)
+            return unet(x, timesteps, reference, degraded=degraded, structure_features=features, view=view)
 
         # A residual restorer samples the correction to the degraded clip; its SDEdit start
         # (strength < 1) is then the zero correction, i.e. the degraded clip itself.
@@ -182,6 +185,7 @@ def restore_clip(
     residual_decoding: bool | None = None,
     samples: int | None = None,
     refine: bool = True,
+    view: np.ndarray | None = None,  # (T,H,W,3) uint8 reference views (view-conditioned restorers)
 ) -> np.ndarray:  # (T,H,W,3) uint8
     """Restore a rendered clip with DriveRestorer (defaults from the checkpoint's restore config).
 
@@ -191,16 +195,33 @@ def restore_clip(
     ``z_restored`` is the mean of ``samples`` samples (module docstring). A restorer
     with a pixel refiner (``train-refiner``) then refines that output frame by frame, unless
     ``refine`` is False (the diffusion restorer's output alone, e.g. to measure the refiner).
+
+    A view-conditioned restorer (``UNetConfig.view_condition``, beyond the paper) also takes
+    ``view``: per frame, the view the reconstruction was trained on at the same timestamp (for a
+    novel-trajectory render, the recorded frame); without it its frames count as having no view
+    (zero latents), as the original-trajectory pairs it trained on.
     """
     if restorer.kind != "restorer":
         raise RecondreamerError(f"restore_clip needs a restorer, got a {restorer.kind} ({restorer.arch})")
     degraded_latents, structure_tensor = _encode_conditions(restorer, frames, structure, "degraded frames")
+    view_latents = None
+    if restorer.unet_config.view_condition:
+        if view is None:
+            view_latents = torch.zeros_like(degraded_latents)
+        else:
+            _check_frames(restorer, view, "reference views")
+            if view.shape != frames.shape:
+                raise RecondreamerError(f"reference views {view.shape} do not match the degraded frames {frames.shape} (T,H,W,3)")
+            view_latents = encode_frames(restorer.autoencoder, view)
+    elif view is not None:
+        raise RecondreamerError(f"this {restorer.arch} restorer takes no reference views (it was trained without view_condition)")
     config = restorer.restore_config
     latents = _sample_clip(
         restorer, degraded_latents, structure_tensor, degraded_latents,
         num_steps or config.sample_steps, window or config.window, config.overlap if overlap is None else overlap,
         config.strength if strength is None else strength,
         clip_noise(degraded_latents, config.samples if samples is None else samples, config.seed if seed is None else seed),
+        view_latents,
     )
     if not (config.residual_decoding if residual_decoding is None else residual_decoding):
         restored = decode_latents(restorer.autoencoder, latents)

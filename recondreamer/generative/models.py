@@ -21,6 +21,7 @@ from recondreamer.generative.config import (
     RestoreConfig,
     TrainConfig,
     UNetConfig,
+    unet_config_from_dict,
 )
 from recondreamer.device import module_device, use_fast_conv_layout
 from recondreamer.generative.diffusion import NoiseSchedule
@@ -104,7 +105,7 @@ def model_config_dict(model: GenerativeModel) -> dict:
 def config_sections(config: dict) -> dict:
     """The config dataclasses of a model config dict, section by section ("masks" may be None)."""
     return {
-        "unet": from_dict(UNetConfig, config["unet"]),
+        "unet": unet_config_from_dict(config["unet"]),
         "diffusion": from_dict(DiffusionConfig, config["diffusion"]),
         "train": from_dict(TrainConfig, config["train"]),
         "masks": None if config["masks"] is None else from_dict(MaskConfig, config["masks"]),
@@ -148,8 +149,11 @@ def load_generative_model(path: str | os.PathLike, kind: str, device: torch.devi
         return model_from_payload(load_checkpoint(path, kind), device)
 
 
-def restorer_unet_from_world_model(world: GenerativeModel, arch: str, blocks_per_level: int | None = None) -> LatentUNet:
-    """The world model's UNet with a zero-initialised degraded-video input branch.
+def restorer_unet_from_world_model(
+    world: GenerativeModel, arch: str, blocks_per_level: int | None = None, view_condition: bool = False
+) -> LatentUNet:
+    """The world model's UNet with a zero-initialised degraded-video input branch (and, with
+    ``view_condition``, a zero-initialised reference-view branch).
 
     ``dd2_mask`` is fine-tuned from a ``dd2`` world model, every other arch from its own.
     ``blocks_per_level`` (default: the world model's) may add residual blocks per level; they
@@ -163,9 +167,9 @@ def restorer_unet_from_world_model(world: GenerativeModel, arch: str, blocks_per
         raise CheckpointError(
             f"a restorer of {blocks} residual blocks per level cannot start from a world model of {world.unet_config.blocks_per_level}"
         )
-    config = dataclasses.replace(world.unet_config, arch=arch, degraded_condition=True, blocks_per_level=blocks)
+    config = dataclasses.replace(world.unet_config, arch=arch, degraded_condition=True, blocks_per_level=blocks, view_condition=view_condition)
     unet = LatentUNet(config)
-    load_grown_state(unet, world.unet.state_dict(), allowed_missing=("degraded_in.",), source="world model")
+    load_grown_state(unet, world.unet.state_dict(), allowed_missing=("degraded_in.", "view_in."), source="world model")
     return unet
 
 

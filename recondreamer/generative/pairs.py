@@ -12,7 +12,10 @@ too (``trajectories``): renders along e.g. ``shift@3`` from every selected snaps
 final model, paired with the true novel frames. Those are the artifacts DriveRestorer meets in
 the ReconDreamer loop (a fully trained reconstruction seen from a lane away), which training-view
 renders of late snapshots barely show. One ``SCENE__RUN__TRAJECTORY.npz`` per novel trajectory;
-``sky`` then comes from the novel views' sky masks where the scene has them.
+``sky`` then comes from the novel views' sky masks where the scene has them, and ``view`` (T,H,W,3)
+uint8 holds the recorded frames of the same timestamps: the views the reconstruction was trained
+on, which a view-conditioned restorer (``UNetConfig.view_condition``, beyond the paper) takes as
+a further input.
 """
 
 from __future__ import annotations
@@ -89,7 +92,9 @@ def make_pairs_for_run(
     return written
 
 
-def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict, out_dir: Path) -> Path:
+def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict, out_dir: Path, view: np.ndarray | None = None) -> Path:
+    """Render ``trajectory`` with each model; write the pairs file. ``view`` (T,H,W,3) uint8: the
+    reference views to store (default: the recorded frames on a novel trajectory, none on the original)."""
     from recondreamer.recon import render_trajectory
     from recondreamer.generative.data import (
         scene_structure,
@@ -109,6 +114,8 @@ def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict,
     else:
         gt = np.stack([scene.novel_image(trajectory, t) for t in range(scene.num_frames)])
         sky = [_novel_sky_mask(scene, trajectory, t) for t in range(scene.num_frames)]
+        if view is None:
+            view = np.stack([scene.image(t) for t in range(scene.num_frames)])
     arrays = {
         "gt": gt,
         "degraded": np.stack(degraded),
@@ -123,6 +130,8 @@ def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict,
     }
     if all(mask is not None for mask in sky):
         arrays["sky"] = np.stack(sky).astype(bool)
+    if view is not None:
+        arrays["view"] = view
     suffix = "" if trajectory == "original" else f"__{trajectory}"
     out = out_dir / f"{scene.scene_id}__{run_dir.name}{suffix}.npz"
     with atomic_path(out) as tmp, open(tmp, "wb") as handle:

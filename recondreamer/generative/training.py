@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from recondreamer.errors import CheckpointError, RecondreamerError
-from recondreamer.configs import from_dict, to_dict
+from recondreamer.configs import to_dict
 from recondreamer.evaluation.image_metrics import psnr
 from recondreamer.generative.autoencoder import Autoencoder, frames_to_tensor
 from recondreamer.generative.checkpoint import load_checkpoint, save_checkpoint
@@ -32,6 +32,7 @@ from recondreamer.generative.config import (
     RestoreConfig,
     TrainConfig,
     UNetConfig,
+    unet_config_from_dict,
 )
 from recondreamer.generative.data import (
     Sequence,
@@ -142,6 +143,7 @@ def sample_batch(
     masks: MaskConfig | None = None,
     autoencoder: Autoencoder | None = None,
     with_pixels: bool = False,
+    with_view: bool = False,
 ) -> dict:
     """A batch of random clips, randomly cropped in latent space.
 
@@ -152,6 +154,8 @@ def sample_batch(
     ``masks``, the degraded frames are masked in pixel space and re-encoded (``z = E(V * M)``).
     With ``with_pixels`` (restorers), also target_pixels and degraded_pixels (B,T,3,h*f,w*f) in
     [-1,1]: the same crop in pixels, the degraded one as encoded (masked where masks fell).
+    With ``with_view`` (view-conditioned restorers), also view (B,T,c,h,w): the crop of the
+    sequence's reference-view latents, zeros for a sequence without them.
     """
     window = min(train.window, min(s.num_frames for s in sequences))
     latent_h, latent_w = sequences[0].target.shape[-2:]
@@ -160,7 +164,7 @@ def sample_batch(
     f = downsample_factor
     if with_pixels and any(s.target_frames is None or s.degraded_frames is None for s in sequences):
         raise RecondreamerError("an image-space loss needs the pairs' pixels: load the pairs with keep_frames=True")
-    targets, references, structures, degraded = [], [], [], []
+    targets, references, structures, degraded, views = [], [], [], [], []
     target_pixels, degraded_pixels = [], []
     for _ in range(train.batch_size):
         seq = sequences[rng.integers(len(sequences))]
@@ -192,6 +196,8 @@ def sample_batch(
                         latents[masked] = autoencoder.encode(frames_to_tensor(pixels[masked]).to(module_device(autoencoder))).cpu()
             degraded.append(latents[:, :, rows, cols])
             references.append(degraded[-1][0])
+            if with_view:
+                views.append(torch.zeros_like(degraded[-1]) if seq.view is None else seq.view[frames, :, rows, cols])
             if with_pixels:
                 target_pixels.append(frames_to_tensor(seq.target_frames[frames, pixel_rows, pixel_cols]))
                 degraded_pixels.append(frames_to_tensor(pixels[:, pixel_rows, pixel_cols]))
@@ -200,6 +206,7 @@ def sample_batch(
         "reference": torch.stack(references),
         "structure": torch.stack(structures).float() / 255.0 if with_structure else None,
         "degraded": torch.stack(degraded) if with_degraded else None,
+        "view": torch.stack(views) if with_view and with_degraded else None,
     }
     if with_pixels:
         batch["target_pixels"], batch["degraded_pixels"] = torch.stack(target_pixels), torch.stack(degraded_pixels)
@@ -226,7 +233,7 @@ def unet_loss_and_estimate(
     batch = _batch_on(batch, module_device(unet))
 
     def model_fn(noisy: torch.Tensor, timesteps: torch.Tensor) -> torch.Tensor:
-        return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"])
+        return unet(noisy, timesteps, batch["reference"], structure=batch["structure"], degraded=batch["degraded"], view=batch.get("view"))
 
     x0 = schedule.to_diffusion_space(batch["target"], batch["degraded"])
     return diffusion_loss_and_estimate(model_fn, schedule, x0, generator, timestep_power)
@@ -346,6 +353,7 @@ def train_restorer(
     device: torch.device | str = "cpu",
     init_from: str | os.PathLike | None = None,
     blocks_per_level: int | None = None,
+    view_condition: bool = False,
 ) -> dict:
     """Fine-tune a world model with the (masked, for dd2_mask) degraded video as extra condition.
 
@@ -356,14 +364,18 @@ def train_restorer(
     train a restorer further, e.g. with other crops or losses); the metrics then also hold the
     total steps and CPU minutes of both jobs. ``blocks_per_level`` (default: ``init_from``'s, else the world model's)
     deepens the UNet by residual blocks that start as the identity, so a restorer can be grown
-    from a shallower one (``init_from``) without losing what it learned.
+    from a shallower one (``init_from``) without losing what it learned. ``view_condition`` adds the
+    reference-view input (beyond the paper, ``unet.LatentUNet``); it learns from the pairs files
+    that hold reference views and sees zeros for the others.
     """
     torch.manual_seed(train.seed)
     world.to(device)
     initial = None if init_from is None else load_checkpoint(init_from, "restorer")  # the restorer this job starts from
     if blocks_per_level is None and initial is not None:
-        blocks_per_level = from_dict(UNetConfig, initial["config"]["unet"]).blocks_per_level
-    unet = restorer_unet_from_world_model(world, arch, blocks_per_level)
+        blocks_per_level = unet_config_from_dict(initial["config"]["unet"]).blocks_per_level
+    if view_condition and not any(seq.view is not None for seq in sequences):
+        raise RecondreamerError("a view-conditioned restorer needs pairs files with reference views (array 'view'); none of the pairs has one")
+    unet = restorer_unet_from_world_model(world, arch, blocks_per_level, view_condition)
     if initial is not None:
         check_initial_restorer(init_from, initial, arch, unet.config, world.autoencoder, target_space)
         load_grown_state(unet, initial["state"], allowed_missing=(), source=str(init_from))
@@ -388,7 +400,7 @@ def train_restorer(
     def loss_fn(rng: np.random.Generator, generator: torch.Generator) -> torch.Tensor:
         batch = sample_batch(
             sequences, rng, train, unet.config.downsample_factor, unet.config.uses_structure, True, masks, world.autoencoder,
-            with_pixels=image_weight > 0.0,
+            with_pixels=image_weight > 0.0, with_view=view_condition,
         )
         loss, estimate = unet_loss_and_estimate(unet, schedule, batch, generator, train.timestep_power)
         if image_weight > 0.0:

@@ -8,7 +8,11 @@ spatial location. Conditions:
 - structure maps ``(B, T, S, H, W)`` at pixel resolution (dd2 archs): a small strided conv
   encoder brings them to latent resolution; its last conv is zero-initialised;
 - degraded-video latent ``(B, T, c, h, w)`` (restorers): its own input conv, zero-initialised, so a
-  restorer made from a world model computes exactly the world model's output at step 0.
+  restorer made from a world model computes exactly the world model's output at step 0;
+- reference-view latent ``(B, T, c, h, w)`` (restorers with ``view_condition``, beyond the paper):
+  per frame, the view the reconstruction was trained on at the same timestamp (for a
+  novel-trajectory render, the recorded frame); its own zero-initialised input conv. Frames
+  without such a view get zeros, which the zero-initialised conv maps to its bias alone.
 
 ``blocks_per_level`` > 1 adds residual blocks after the first of each level, down and up; they
 start as the identity, so a deeper UNet grown from a trained one computes what it did at first.
@@ -159,6 +163,9 @@ class LatentUNet(nn.Module):
         self.degraded_in = (
             zero_module(nn.Conv2d(config.latent_channels, channels[0], 3, padding=1)) if config.degraded_condition else None
         )
+        self.view_in = zero_module(nn.Conv2d(config.latent_channels, channels[0], 3, padding=1)) if config.view_condition else None
+        if config.view_condition and not config.degraded_condition:
+            raise ValueError("view_condition is a restorer input: it needs degraded_condition")
         self.structure_encoder = (
             StructureEncoder(config.structure_channels, config.structure_hidden, channels[0], config.downsample_factor)
             if config.uses_structure
@@ -217,9 +224,10 @@ class LatentUNet(nn.Module):
         structure: torch.Tensor | None = None,  # (B,T,S,H,W) with H = h*factor (dd2 archs)
         degraded: torch.Tensor | None = None,  # (B,T,c,h,w) degraded-video latent (restorers)
         structure_features: torch.Tensor | None = None,  # (B*T,C0,h,w) from encode_structure, instead of structure
+        view: torch.Tensor | None = None,  # (B,T,c,h,w) reference-view latent (view_condition restorers)
     ) -> torch.Tensor:  # (B,T,c,h,w) predicted target (eps, v or x0)
         b, t, c, h, w = noisy.shape
-        self._check_conditions(noisy, reference, degraded)
+        self._check_conditions(noisy, reference, degraded, view)
         if structure_features is None and self.structure_encoder is not None:
             structure_features = self.encode_structure(structure, noisy.shape)
         frames = noisy.reshape(b * t, c, h, w)
@@ -230,6 +238,8 @@ class LatentUNet(nn.Module):
         x = self.conv_in(torch.cat([frames, reference_frames], dim=1))  # (B*T,C0,h,w)
         if self.degraded_in is not None:
             x = x + self.degraded_in(degraded.reshape(b * t, c, h, w))
+        if self.view_in is not None:
+            x = x + self.view_in(view.reshape(b * t, c, h, w))
         if structure_features is not None:
             x = x + structure_features
 
@@ -277,7 +287,7 @@ class LatentUNet(nn.Module):
             raise ValueError(f"structure conditions have shape {tuple(structure.shape)}, expected {expected}")
         return self.structure_encoder(structure.reshape(b * t, *structure.shape[2:]))
 
-    def _check_conditions(self, noisy, reference, degraded) -> None:
+    def _check_conditions(self, noisy, reference, degraded, view) -> None:
         b, _, c, h, w = noisy.shape
         if c != self.config.latent_channels:
             raise ValueError(f"latent has {c} channels, the model expects {self.config.latent_channels}")
@@ -288,3 +298,10 @@ class LatentUNet(nn.Module):
                 raise ValueError("a restorer needs the degraded-video latent as a condition")
             if degraded.shape != noisy.shape:
                 raise ValueError(f"degraded latent has shape {tuple(degraded.shape)}, expected {tuple(noisy.shape)}")
+        if self.view_in is not None:
+            if view is None:
+                raise ValueError("a view-conditioned restorer needs the reference-view latent (zeros for frames without a view)")
+            if view.shape != noisy.shape:
+                raise ValueError(f"reference-view latent has shape {tuple(view.shape)}, expected {tuple(noisy.shape)}")
+        elif view is not None:
+            raise ValueError("this UNet has no reference-view input (view_condition is off)")
