@@ -7,6 +7,7 @@ restoration quality.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -276,3 +277,23 @@ def test_truth_oracle_trains_on_the_true_views_of_each_shifted_trajectory(scene,
         np.testing.assert_array_equal(video.frames, TrueViewRenderer(scene).render(poses))
     expected = np.stack([scene.novel_image("shift@3", t) for t in range(scene.num_frames)])
     np.testing.assert_array_equal(video.frames, expected)  # shift@3 was also recorded by the generator
+
+
+def test_a_view_conditioned_restorer_sees_the_recorded_frames(scene, tmp_path, monkeypatch):
+    from recondreamer.generative import inference
+
+    plain = tiny_generative("restorer", scene.height, scene.width)
+    unet = LatentUNet(dataclasses.replace(plain.unet_config, view_condition=True)).eval()
+    restorer = dataclasses.replace(plain, unet=unet, unet_config=unet.config)
+    views = []
+    original_restore = inference.restore_clip
+
+    def spy_restore(*args, view=None, **kwargs):
+        views.append(view)
+        return original_restore(*args, view=view, **kwargs)
+
+    monkeypatch.setattr(inference, "restore_clip", spy_restore)
+    train_recondreamer(scene, small_config(iterations=EVERY + 1), tmp_path / "run", restorer,
+                       PdusSchedule(stride=1.5, update_every=EVERY, iterations=EVERY + 1))
+    assert len(views) == 1
+    assert np.array_equal(views[0], np.stack([scene.image(t) for t in range(scene.num_frames)]))
