@@ -85,9 +85,10 @@ def street_run_pairs(scene: Path, run_dir: Path, pairs: Path, trajectories: tupl
     if not (run_dir / "model.pt").is_file():
         run(["train-recon", "--scene", str(scene), "--model", "street", "--out", str(run_dir), "--preset", "default",
              "--seed", "0", "--iterations", "700", "--threads", "1"], logs / f"recon_{scene.name}.log")
-    if not pairs.exists():
+    missing = [name for name in trajectories if not (pairs / f"{scene.name}__{run_dir.name}{'' if name == 'original' else '__' + name}.npz").is_file()]
+    if missing:
         run(["make-pairs", "--run", str(run_dir), "--scene", str(scene), "--out", str(pairs), "--stages", "4",
-             "--trajectories", *trajectories, "--threads", "1"], logs / f"pairs_{scene.name}.log")
+             "--trajectories", *missing, "--threads", "1"], logs / f"pairs_{scene.name}.log")
     return pairs
 
 

@@ -16,7 +16,9 @@ budget (3000 steps, EMA 0.999) on the Street Gaussians pairs of the same corpus 
 10000 on, as the foundation's), alike but for the trajectories their pairs follow:
   novel:        original + shift@3 + shift@6 (the gate's own strides, on other scenes)
   lane_change:  original + lane_change (a lateral drive the gate does not measure)
-and measures both, beside the shipped dd2_mask restorer, with the foundation's gate code on gate
+  novel_view:   as novel, and the restorer also sees each frame's reference view, the recorded
+                frame beside a novel-trajectory render (``train-restorer --view-condition``)
+and measures them, beside the shipped dd2_mask restorer, with the foundation's gate code on gate
 scenes no model saw (seeds 20000-20003). Every step skips what exists, so a stopped run
 continues; two jobs run side by side.
 """
@@ -41,7 +43,9 @@ from early_snapshot_pairs import (  # the sibling experiment's steps, shared
     train_dd2_mask,
 )
 
-ARMS = {"novel": ("original", "shift@3", "shift@6"), "lane_change": ("original", "lane_change")}
+NOVEL = ("original", "shift@3", "shift@6")
+# restorer name -> (trajectories of its pairs, extra train-restorer flags)
+ARMS = {"novel": (NOVEL, ()), "lane_change": (("original", "lane_change"), ()), "novel_view": (NOVEL, ("--view-condition",))}
 
 
 def arm_files(pairs: list[Path], trajectories: tuple[str, ...]) -> list[Path]:
@@ -58,7 +62,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
     parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
-    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default both)")
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default all)")
     args = parser.parse_args()
     arms = {arm: ARMS[arm] for arm in args.arms}
     logging.basicConfig(level=logging.WARNING)
@@ -67,15 +71,16 @@ def main() -> int:
         (out / folder).mkdir(parents=True, exist_ok=True)
     corpus = [(CORPUS_FIRST_SEED + i, f"corpus-{i:03d}") for i in range(args.scenes)]
     gates = [(seed, f"gate-{i:03d}") for i, seed in enumerate(GATE_SEEDS)]
-    trajectories = tuple(dict.fromkeys(name for arm in arms.values() for name in arm))
+    trajectories = tuple(dict.fromkeys(name for names, _ in arms.values() for name in names))
     with ThreadPoolExecutor(2) as pool:
         scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "corpus" / s[1], True), corpus))
         gate_scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "gate_scenes" / s[1], True), gates))
         pairs = list(pool.map(lambda scene: street_run_pairs(scene, out / "runs" / scene.name, out / "pairs" / scene.name, trajectories, out / "logs"), scenes))
         list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
-        restorers = dict(zip(arms, pool.map(lambda arm: train_dd2_mask(arm_files(pairs, arms[arm]), out / f"restorer_{arm}.pt", args.steps, out), arms)))
+        restorers = dict(zip(arms, pool.map(
+            lambda arm: train_dd2_mask(arm_files(pairs, arms[arm][0]), out / f"restorer_{arm}.pt", args.steps, out, arms[arm][1]), arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
-    sources = {arm: " + ".join(names) for arm, names in arms.items()} | {"shipped": "foundation (original)"}
+    sources = {arm: " + ".join(names) + (" + views" if flags else "") for arm, (names, flags) in arms.items()} | {"shipped": "foundation (original)"}
     print_gates(restorers, sources, out)
     return 0
 
