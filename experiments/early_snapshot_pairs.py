@@ -112,19 +112,25 @@ def print_gates(restorers: dict[str, Path], sources: dict[str, str], out: Path) 
     import torch
 
     from recondreamer.foundation import gates as gate_code
+    from recondreamer.generative.checkpoint import load_checkpoint
     from recondreamer.generative.data import find_pairs_files
 
     torch.set_num_threads(2)
     pairs = find_pairs_files(sorted((out / "gate_pairs").iterdir()))
     table = {}
-    print(f"{'restorer':10} {'pairs from':24} {'trajectory':10} {'clips':>5} {'render':>7} {'restored':>8} {'gain':>6} {'flicker':>13}")
-    for name, checkpoint in restorers.items():
-        result = gate_code.restorer_gate(checkpoint, pairs)
+    print(f"{'restorer':12} {'pairs from':40} {'trajectory':10} {'clips':>5} {'render':>7} {'restored':>8} {'gain':>6} {'flicker':>13}")
+    runs = [(name, checkpoint, False) for name, checkpoint in restorers.items()]
+    for name, checkpoint in restorers.items():  # a view-conditioned restorer also without its views: what they add
+        if load_checkpoint(checkpoint, "restorer")["config"]["unet"].get("view_condition"):
+            runs.append((f"{name}-", checkpoint, True))
+            sources[f"{name}-"] = sources[name] + ", views withheld"
+    for name, checkpoint, withhold in runs:
+        result = gate_code.restorer_gate(checkpoint, pairs, withhold_views=withhold)
         table[name] = result
         for trajectory in (*gate_code.NOVEL_GATE_TRAJECTORIES, "original"):
             row = result.get(trajectory)
             if row:
-                print(f"{name:10} {sources[name]:24} {trajectory:10} {row['clips']:5d} {row['render_psnr']:7.2f} {row['restored_psnr']:8.2f} "
+                print(f"{name:12} {sources[name]:40} {trajectory:10} {row['clips']:5d} {row['render_psnr']:7.2f} {row['restored_psnr']:8.2f} "
                       f"{row['gain_db']:+6.2f} {row['render_flicker']:6.2f}->{row['restored_flicker']:5.2f}")
     (out / "gates.json").write_text(json.dumps(table, indent=1, default=str))
     return table

@@ -161,3 +161,45 @@ class TestRestoreWithViews:
         plain = tiny_model("dd2_mask", kind="restorer")
         with pytest.raises(RecondreamerError, match="takes no reference views"):
             restore_clip(plain, frames, structure, view=frames)
+
+
+class TestGateWithViews:
+    """foundation.gates.restorer_gate hands a view-conditioned restorer the pairs' reference views."""
+
+    def _pairs(self, folder, trajectory: str, with_view: bool, seed: int):
+        rng = np.random.default_rng(seed)
+        frames = rng.integers(0, 256, size=(6, H, W, 3), dtype=np.uint8)
+        arrays = {
+            "gt": frames, "degraded": np.stack([frames // 2, frames // 3]), "stages": np.array([1, 2]),
+            "structure": rng.integers(0, 256, size=(6, 3, H, W), dtype=np.uint8), "vanishing": np.zeros((6, 2)),
+            "scene_id": np.array("gate-x"), "trajectory": np.array(trajectory),
+        }
+        if with_view:
+            arrays["view"] = rng.integers(0, 256, size=(6, H, W, 3), dtype=np.uint8)
+        path = folder / f"gate-x__{trajectory}.npz"
+        np.savez_compressed(path, **arrays)
+        return path
+
+    def _checkpoint(self, path):
+        from recondreamer.generative.checkpoint import save_checkpoint
+        from recondreamer.generative.models import autoencoder_payload, model_config_dict
+
+        restorer = view_restorer(tiny_model("dd2"))
+        with torch.no_grad():
+            restorer.unet.view_in.weight.normal_(0.0, 0.5)
+        save_checkpoint(path, "restorer", "dd2_mask", model_config_dict(restorer), restorer.unet.state_dict(),
+                        autoencoder=autoencoder_payload(restorer.autoencoder), training_scenes=[])
+        return path
+
+    def test_views_are_used_withheld_on_request_and_required_on_novel_pairs(self, tmp_path):
+        from recondreamer.foundation.gates import restorer_gate
+
+        checkpoint = self._checkpoint(tmp_path / "r.pt")
+        files = [self._pairs(tmp_path, "original", False, 0), self._pairs(tmp_path, "shift@3", True, 1)]
+        with_views = restorer_gate(checkpoint, files)
+        withheld = restorer_gate(checkpoint, files, withhold_views=True)
+        assert with_views["original"] == withheld["original"]  # no views there either way
+        assert with_views["shift@3"]["restored_psnr"] != withheld["shift@3"]["restored_psnr"]
+        files[1] = self._pairs(tmp_path, "shift@3", False, 1)
+        with pytest.raises(RecondreamerError, match="needs gate pairs with reference views"):
+            restorer_gate(checkpoint, files)

@@ -46,8 +46,10 @@ def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[t
     return clips
 
 
-def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
-    """PSNR of render and restored clip against the truth, gain and flicker, per trajectory."""
+def restorer_gate(path: str | Path, pair_files: list[Path], withhold_views: bool = False) -> dict:
+    """PSNR of render and restored clip against the truth, gain and flicker, per trajectory.
+    ``withhold_views`` restores without the reference views a view-conditioned restorer takes
+    (what they add to it)."""
     from recondreamer.generative.checkpoint import load_checkpoint
     from recondreamer.generative.inference import load_restorer, restore_clip
     from recondreamer.generative.scoring import pairs_kind, score_clip, summarise
@@ -58,7 +60,7 @@ def restorer_gate(path: str | Path, pair_files: list[Path]) -> dict:
     seen = sorted({scene for items in clips.values() for scene, *_ in items} & trained_on)
     if seen:
         raise RecondreamerError(f"{path}: the restorer was trained on gate scenes {seen}; gates need scenes no model saw")
-    views = restorer.unet_config.view_condition
+    views = restorer.unet_config.view_condition and not withhold_views
     if views and any(view is None for trajectory, items in clips.items() if trajectory != "original" for *_, view in items):
         raise RecondreamerError(f"{path}: a view-conditioned restorer needs gate pairs with reference views (make-pairs writes them on novel trajectories)")
     result: dict = {"arch": restorer.arch}
