@@ -123,7 +123,7 @@ def print_gates(restorers: dict[str, Path], sources: dict[str, str], out: Path) 
     for name, checkpoint in restorers.items():  # a view-conditioned restorer also without its views: what they add
         if load_checkpoint(checkpoint, "restorer")["config"]["unet"].get("view_condition"):
             runs.append((f"{name}-", checkpoint, True))
-            sources[f"{name}-"] = sources[name] + ", views withheld"
+            sources[f"{name}-"] = f"{name}, its views withheld"
     for name, checkpoint, withhold in runs:
         result = gate_code.restorer_gate(checkpoint, pairs, withhold_views=withhold)
         table[name] = result
