@@ -41,10 +41,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from early_snapshot_pairs import (  # the sibling experiments' steps, shared
     CORPUS_FIRST_SEED,
+    FOUNDATION_RESTORER_STEPS,
     GATE_SEEDS,
     SHIPPED,
     gate_pairs,
     print_gates,
+    restorer_path,
     street_run_pairs,
     synth,
     train_dd2_mask,
@@ -94,7 +96,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable; experiments/novel_view_pairs.py's)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
-    parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
+    parser.add_argument("--steps", type=int, default=FOUNDATION_RESTORER_STEPS, help="restorer training steps (default 3000, as the foundation)")
     parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default both)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -119,7 +121,7 @@ def main() -> int:
         list(pool.map(cycle_job, [(scene, shift) for scene in scenes for shift in CYCLE_SHIFTS]))
         recorded = [out / "pairs" / scene.name / f"{scene.name}__{scene.name}.npz" for scene in scenes]
         restorers = dict(zip(args.arms, pool.map(
-            lambda arm: train_dd2_mask([*recorded, out / "pairs_cycle"], out / f"restorer_{arm}.pt", args.steps, out, ARMS[arm]), args.arms)))
+            lambda arm: train_dd2_mask([*recorded, out / "pairs_cycle"], restorer_path(out, arm, args.steps), args.steps, out, ARMS[arm]), args.arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
     sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "shipped": "foundation (original)"}
     print_gates(restorers, sources, out)

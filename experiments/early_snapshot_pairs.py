@@ -97,6 +97,14 @@ def gate_pairs(scene: Path, out: Path) -> Path:
     return street_run_pairs(scene, out / "gate_runs" / scene.name, out / "gate_pairs" / scene.name, ("original", "shift@3", "shift@6"), out / "logs")
 
 
+FOUNDATION_RESTORER_STEPS = 3000
+
+
+def restorer_path(out: Path, arm: str, steps: int) -> Path:
+    """Where an arm's restorer goes; a budget other than the foundation's is part of the name."""
+    return out / (f"restorer_{arm}.pt" if steps == FOUNDATION_RESTORER_STEPS else f"restorer_{arm}_{steps}steps.pt")
+
+
 def train_dd2_mask(pairs: list[Path], checkpoint: Path, steps: int, out: Path, flags: tuple[str, ...] = ()) -> Path:
     """A dd2_mask DriveRestorer from the shipped dd2 world model, with the foundation's recipe (EMA 0.999)
     and any further train-restorer ``flags``."""
@@ -140,7 +148,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
-    parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
+    parser.add_argument("--steps", type=int, default=FOUNDATION_RESTORER_STEPS, help="restorer training steps (default 3000, as the foundation)")
     args = parser.parse_args()
     import logging
 
@@ -165,7 +173,7 @@ def main() -> int:
         list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
 
     with ThreadPoolExecutor(2) as pool:
-        restorers = dict(zip(ARMS, pool.map(lambda arm: train_dd2_mask([out / f"pairs_{arm}"], out / f"restorer_{arm}.pt", args.steps, out), ARMS)))
+        restorers = dict(zip(ARMS, pool.map(lambda arm: train_dd2_mask([out / f"pairs_{arm}"], restorer_path(out, arm, args.steps), args.steps, out), ARMS)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
 
     sources = {arm: "steps " + " + ".join(map(str, stages)) for arm, stages in ARMS.items()} | {"shipped": "foundation"}

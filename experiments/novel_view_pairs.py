@@ -34,10 +34,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from early_snapshot_pairs import (  # the sibling experiment's steps, shared
     CORPUS_FIRST_SEED,
+    FOUNDATION_RESTORER_STEPS,
     GATE_SEEDS,
     SHIPPED,
     gate_pairs,
     print_gates,
+    restorer_path,
     street_run_pairs,
     synth,
     train_dd2_mask,
@@ -61,7 +63,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
-    parser.add_argument("--steps", type=int, default=3000, help="restorer training steps (default 3000, as the foundation)")
+    parser.add_argument("--steps", type=int, default=FOUNDATION_RESTORER_STEPS, help="restorer training steps (default 3000, as the foundation)")
     parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default all)")
     args = parser.parse_args()
     arms = {arm: ARMS[arm] for arm in args.arms}
@@ -78,7 +80,7 @@ def main() -> int:
         pairs = list(pool.map(lambda scene: street_run_pairs(scene, out / "runs" / scene.name, out / "pairs" / scene.name, trajectories, out / "logs"), scenes))
         list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
         restorers = dict(zip(arms, pool.map(
-            lambda arm: train_dd2_mask(arm_files(pairs, arms[arm][0]), out / f"restorer_{arm}.pt", args.steps, out, arms[arm][1]), arms)))
+            lambda arm: train_dd2_mask(arm_files(pairs, arms[arm][0]), restorer_path(out, arm, args.steps), args.steps, out, arms[arm][1]), arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
     sources = {arm: " + ".join(names) + (" + views" if flags else "") for arm, (names, flags) in arms.items()} | {"shipped": "foundation (original)"}
     print_gates(restorers, sources, out)
