@@ -160,7 +160,7 @@ def evaluate_scene(scene_dir: str | Path, renders: list[tuple[str, str | Path]],
         except ValueError as error:
             raise RecondreamerError(f"--trajectory {name}: {error}") from None
     frames_by_name = {name: read_frame_folder(directory, scene.num_frames, (scene.width, scene.height)) for name, directory in renders}
-    reference = np.stack([scene.image(t) for t in range(scene.num_frames)])
+    reference = scene.images()
     reference_features = inference.fid_features(models.features.module, reference)
     features = {"reference": reference_features}
     per_trajectory = {}

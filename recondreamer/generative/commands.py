@@ -285,8 +285,6 @@ def run_train_refiner(args: argparse.Namespace) -> int:
 
 def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
     """Original frames (reference) and structure maps of the trajectory's cameras."""
-    import numpy as np
-
     from recondreamer.errors import RecondreamerError
     from recondreamer.generative.data import scene_structure
     from recondreamer.scene import load_scene
@@ -297,7 +295,7 @@ def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
         cams = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, trajectory)
     except ValueError as error:
         raise RecondreamerError(f"--trajectory {trajectory!r}: {error}") from error
-    reference = np.stack([scene.image(t) for t in range(scene.num_frames)])
+    reference = scene.images()
     structure = scene_structure(scene, cams) if needs_structure else None
     return scene, reference, structure
 

@@ -129,7 +129,7 @@ def load_corpus_sequences(corpus: str | os.PathLike, autoencoder: Autoencoder, w
     sequences = []
     for scene_dir in find_scene_dirs(corpus):
         scene = load_scene(scene_dir)
-        trajectories = [("original", np.stack([scene.image(t) for t in range(scene.num_frames)]))]
+        trajectories = [("original", scene.images())]
         for name in scene.novel_trajectories:
             trajectories.append((name, np.stack([scene.novel_image(name, t) for t in range(scene.num_frames)])))
         for name, frames in trajectories:

@@ -109,13 +109,13 @@ def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict,
         degraded.append(render_trajectory(model, scene, cams))
         LOG.info("pairs %s %s: rendered step %d", run_dir.name, trajectory, step)
     if trajectory == "original":
-        gt = np.stack([scene.image(t) for t in range(scene.num_frames)])
+        gt = scene.images()
         sky = [scene.sky_mask(t) for t in range(scene.num_frames)]
     else:
         gt = np.stack([scene.novel_image(trajectory, t) for t in range(scene.num_frames)])
         sky = [_novel_sky_mask(scene, trajectory, t) for t in range(scene.num_frames)]
         if view is None:
-            view = np.stack([scene.image(t) for t in range(scene.num_frames)])
+            view = scene.images()
     arrays = {
         "gt": gt,
         "degraded": np.stack(degraded),

@@ -114,7 +114,7 @@ class ProgressiveDataUpdate:
         else:
             structure = scene_structure(scene, poses)  # (T,C,H,W) uint8, boxes + map in the shifted cameras
             # A view-conditioned restorer (beyond the paper) also sees the recorded frames of the same timestamps.
-            view = np.stack([scene.image(t) for t in range(scene.num_frames)]) if self.restorer.unet_config.view_condition else None
+            view = scene.images() if self.restorer.unet_config.view_condition else None
             restored = restore_clip(self.restorer, rendered, structure, num_steps=self.restore_steps,
                                     strength=self.restore_strength, seed=self.seed + k, view=view)
         weights = video_weights(k)

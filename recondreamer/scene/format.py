@@ -428,6 +428,10 @@ class Scene:
     def image(self, t: int) -> np.ndarray:  # (H,W,3) uint8
         return self._original.image(t)
 
+    def images(self) -> np.ndarray:  # (T,H,W,3) uint8
+        """Every recorded frame, in order."""
+        return np.stack([self.image(t) for t in range(self.num_frames)])
+
     def depth(self, t: int) -> np.ndarray | None:  # (H,W) float32 metres along z, 0 = no hit
         return self._original.depth(t)
 
