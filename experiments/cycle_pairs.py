@@ -6,14 +6,10 @@ Run it on the folder of experiments/novel_view_pairs.py (it reuses that folder's
 Street Gaussians runs, pairs and gate pairs, and makes what is missing); docs/foundation.md cites
 its table.
 
-The paper's DriveRestorer learns from renders of under-trained reconstructions along the recorded
-trajectory; their degradation (blur of a model that has not converged) is not the one it meets
-along shift@3 and shift@6 (a converged model seen from where it was never trained). A cycle makes
-the second kind with the recorded frames as truth (Difix3D+ builds training pairs this way): the
-corpus scene's Street Gaussians run A renders the lateral drive shift@K; a second run B trains on
-those renders only (at the shifted cameras, with the drive's LiDAR depth projected into them); B
-then renders the recorded trajectory, K metres away from everything it was trained on, and those
-renders pair with the recorded frames. No frame of any lateral drive is used.
+Cycle pairs (recondreamer/generative/cycle.py, ``make-cycle-pairs``) carry the degradation of a
+converged reconstruction seen a lane away, with the recorded frames as truth: each corpus scene's
+Street Gaussians run A renders shift@K, a run B trains on those renders alone and renders the
+recorded trajectory. No frame of any lateral drive is used.
 
 This trains dd2_mask restorers from the shipped dd2 world model with the foundation's recipe and
 budget (3000 steps, EMA 0.999) on the cycle pairs of K = 3 and 6 (B's snapshot at step 350 and its
@@ -31,7 +27,6 @@ Every step skips what exists, so a stopped run continues; two jobs run side by s
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import subprocess
 import sys
@@ -53,43 +48,22 @@ from early_snapshot_pairs import (  # the sibling experiments' steps, shared
 )
 
 CYCLE_SHIFTS = ("shift@3", "shift@6")
-CYCLE_ITERATIONS, CYCLE_SNAPSHOT = 700, 350
+CYCLE_ITERATIONS = 700  # run B's, as run A's (its snapshot: half of them)
 ARMS = {"cycle": (), "view": ("--view-condition",)}  # restorer name -> extra train-restorer flags
 
 
 def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Path) -> Path:
-    """Run B on run A's renders along ``shift``; B's renders along the recorded trajectory as pairs,
-    with A's renders as their reference views (what B was trained on at each timestamp)."""
+    """Run B on run A's renders along ``shift`` (700 iterations, as run A); its pairs (make-cycle-pairs)."""
     target = pairs / f"{scene_dir.name}__{shift}.npz"
     if target.exists():
         return target
-    import numpy as np
     import torch
 
-    from recondreamer.generative.pairs import _write_trajectory_pairs
-    from recondreamer.recon import load_model, render_trajectory
+    from recondreamer.generative.cycle import make_cycle_pairs
     from recondreamer.recon.config import make_config
-    from recondreamer.recon.data import TrainingSet, TrainingView, lidar_depth_map
-    from recondreamer.recon.trainer import train_scene
-    from recondreamer.scene import load_scene
-    from recondreamer.scene.trajectories import trajectory_cam_to_world
 
     torch.set_num_threads(1)
-    scene = load_scene(scene_dir)
-    cams = trajectory_cam_to_world(scene.cam_to_world, scene.ego_to_world, shift)
-    renders = render_trajectory(load_model(run_a / "model.pt"), scene, cams)
-    views = [
-        TrainingView(cam_to_world=np.asarray(cam, dtype=np.float64), timestamp=float(scene.timestamps[t]), image=renders[t],
-                     depth=lidar_depth_map(scene.lidar(t), scene.K, cam, scene.width, scene.height), source="cycle", frame=t)
-        for t, cam in enumerate(cams)
-    ]
-    if (run_b / "model.pt").is_file():
-        final = load_model(run_b / "model.pt")
-    else:
-        config = dataclasses.replace(make_config("street", "default"), iterations=CYCLE_ITERATIONS, snapshot_steps=(CYCLE_SNAPSHOT,))
-        final = train_scene(scene, config, run_b, training_set=TrainingSet(scene.K, scene.width, scene.height, views))
-    models = {CYCLE_SNAPSHOT: load_model(run_b / "snapshots" / f"step_{CYCLE_SNAPSHOT:06d}.pt"), CYCLE_ITERATIONS: final}
-    return _write_trajectory_pairs(run_b, scene, "original", models, pairs, view=np.stack(renders))
+    return make_cycle_pairs(run_a, scene_dir, shift, run_b, pairs, make_config("street", "default", iterations=CYCLE_ITERATIONS))
 
 
 def main() -> int:

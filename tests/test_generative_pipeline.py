@@ -52,6 +52,7 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path, capsys):
     restorer = load_checkpoint(tmp_path / "r.pt", "restorer")
     assert restorer["config"]["train"]["pixel_loss_weight"] == 2.0
     assert restorer["config"]["masks"]["probability"] == 0.5 and restorer["training_scenes"] == [scene.scene_id]
+    assert restorer["pair_kinds"] == ["snapshot"]  # the checkpoint says what its pairs taught (the tables' notes name it)
     assert restorer["config"]["restore"] | {"residual_decoding": True, "sample_steps": 3, "strength": 0.5, "samples": 2} == restorer["config"]["restore"]
     assert restorer["config"]["diffusion"]["prediction"] == "v"
     # Residual target space by default, its scale measured on the pairs (blur leaves a non-zero residual).
@@ -75,7 +76,9 @@ def test_commands_end_to_end_on_a_tiny_scene(tmp_path, capsys):
         np.savez_compressed(pairs / "a__run__shift@3.npz", **dict(content), view=gt[::-1].copy(), trajectory=np.array("shift@3"))
     assert main(["train-restorer", "--arch", "dd2_mask", "--world-model", str(tmp_path / "wm.pt"), "--pairs", str(pairs),
                  "--out", str(tmp_path / "r_view.pt"), "--view-condition", *train]) == 0
-    assert load_checkpoint(tmp_path / "r_view.pt", "restorer")["config"]["unet"]["view_condition"] is True
+    view_restorer = load_checkpoint(tmp_path / "r_view.pt", "restorer")
+    assert view_restorer["config"]["unet"]["view_condition"] is True
+    assert view_restorer["pair_kinds"] == ["snapshot", "truth:shift@3"]  # novel-view truth is recorded as such
     np.save(tmp_path / "renders.npy", _blur(gt))
     for trajectory in ("shift@3", "original"):  # with the recorded frames as views, and without views
         assert main(["restore", "--restorer", str(tmp_path / "r_view.pt"), "--scene", str(scene.path), "--renders",

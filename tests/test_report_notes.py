@@ -54,6 +54,22 @@ def test_every_stand_in_is_named_with_its_size(run):
     assert notes[1] == notes[2] == notes[4]
 
 
+def test_cycle_pairs_and_novel_view_truth_are_named_as_additions_to_the_recipe(run, tmp_path):
+    models = tmp_path / "models"
+    for arch in ("sd", "svd", "dd2", "dd2_mask"):
+        payload = torch.load(models / f"restorer_{arch}.pt")
+        payload["pair_kinds"] = ["cycle:shift@3", "cycle:shift@6", "snapshot"]
+        torch.save(payload, models / f"restorer_{arch}.pt")
+    run["restorer"].update(cycle_corpus_scenes=40, cycle_trajectories=["shift@3", "shift@6"])
+    text = " ".join(run_notes(run)[1])
+    assert "cycle pairs: reconstructions trained on renders of the lateral drives shift@3, shift@6" in text
+    assert "cycles on 40 corpus scene(s) along shift@3, shift@6" in text and "never novel-view truth" in text
+    payload["pair_kinds"] = ["snapshot", "truth:shift@6"]  # dd2_mask alone learned from novel-view truth
+    torch.save(payload, models / "restorer_dd2_mask.pt")
+    text = " ".join(run_notes(run)[1])
+    assert "novel-view truth pairs along shift@6 (beyond the paper" in text and "never novel-view truth" not in text
+
+
 def test_the_default_config_names_the_shipped_weight_set_and_its_budgets(tmp_path):
     from recondreamer.foundation.weights import read_manifest, shipped_weights_dir
 

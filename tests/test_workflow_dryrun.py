@@ -172,6 +172,30 @@ def test_refiner_steps_add_a_refiner_to_every_trained_restorer_and_the_runs_use_
     assert runs and all(re.search(r"--restorer (my_dd2\.pt|\S+_refined\.pt) ", line) for line in runs)
 
 
+def test_cycle_pairs_add_a_cycle_per_scene_and_drive_and_every_restorer_trains_on_them(tmp_path):
+    root = workflow_copy(tmp_path)
+    config = yaml.safe_load((root / "config" / "quick.yaml").read_text())
+    config["restorer"]["cycle_corpus_scenes"] = 2  # corpus-000 (also a pairs scene) and corpus-001
+    config["restorer"]["cycle_trajectories"] = ["shift@3", "shift@6"]
+    (root / "cycle.yaml").write_text(yaml.safe_dump(config))
+    plain = job_counts(snakemake(root, "-n", "--quiet", "rules", "--configfile", "config/quick.yaml").stdout)
+    result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "cycle.yaml")
+    assert result.returncode == 0, result.stderr
+    # corpus-001 needs its Street Gaussians run (run A of its cycles); corpus-000 has one already.
+    assert job_counts(result.stdout) == {**plain, "make_cycle_pairs_corpus": 4, "train_corpus_recon": plain["train_corpus_recon"] + 1,
+                                         "total": plain["total"] + 5}
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "cycle.yaml", "--until", "train_restorer").stdout
+    cycles = re.findall(r"recondreamer make-cycle-pairs --run \S+/corpus_runs/(corpus-\d+)/street --scene \S+/corpus/\1 "
+                        r"--trajectory (\S+) --cycle-run \S+/cycle_runs/\1/\2 --out \S+/pairs/cycle/\1/\2 --preset quick", shell)
+    assert sorted(cycles) == [(scene, drive) for scene in ("corpus-000", "corpus-001") for drive in ("shift@3", "shift@6")]
+    trainings = [line for line in shell.splitlines() if "recondreamer train-restorer" in line]
+    assert len(trainings) == 4 and all(line.count("/pairs/cycle/corpus-") == 4 for line in trainings)
+    config["restorer"]["cycle_corpus_scenes"] = 0  # the default: the paper's pairs only
+    (root / "cycle.yaml").write_text(yaml.safe_dump(config))
+    shell = snakemake(root, "-n", "--printshellcmds", "--configfile", "cycle.yaml", "--until", "train_restorer").stdout
+    assert "make-cycle-pairs" not in shell and "/pairs/cycle/" not in shell
+
+
 def _bad_config(root: Path, edit) -> str:
     config = workflow_config("config/quick.yaml", root=root)
     edit(config)
@@ -195,6 +219,10 @@ def test_bad_configs_fail_at_parse_time_with_the_schema_message(tmp_path):
 
     message = _bad_config(root, missing_segment_file)
     assert "missing segment file(s)" in message and "resources/waymo/absent.tfrecord" in message
+    message = _bad_config(root, lambda c: c["restorer"].update(cycle_corpus_scenes=99))
+    assert "restorer.cycle_corpus_scenes exceeds synthetic.corpus.num_scenes" in message
+    message = _bad_config(root, lambda c: c["restorer"].update(cycle_corpus_scenes=1, cycle_trajectories=[]))
+    assert "restorer.cycle_trajectories is empty" in message
 
 
 def test_lint_reports_nothing(tmp_path):

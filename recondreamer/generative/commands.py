@@ -6,8 +6,10 @@ import argparse
 import dataclasses
 import logging
 import time
+from pathlib import Path
 
 from recondreamer.cli_options import add_config_options, apply_options
+from recondreamer.errors import RecondreamerError
 from recondreamer.generative.config import (
     ARCHS,
     RESTORER_RESTORE,
@@ -19,6 +21,9 @@ from recondreamer.generative.config import (
     RestoreConfig,
     TrainConfig,
 )
+
+from recondreamer.recon.commands import TRAIN_OPTIONS as RECON_TRAIN_OPTIONS
+from recondreamer.recon.config import MODEL_TYPES, PRESETS, ReconConfig, make_config
 
 LOG = logging.getLogger(__name__)
 
@@ -71,6 +76,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     _add_threads_option(p)
     p.set_defaults(func=run_make_pairs)
+
+    p = subparsers.add_parser(
+        "make-cycle-pairs",
+        help="cycle pairs: a second reconstruction trained on a run's renders of a lateral drive renders the recorded trajectory",
+        description="Run A (--run) renders the lateral drive --trajectory; run B (--cycle-run, resumed if present) trains on "
+        "those renders alone, with the drive's LiDAR depth, and renders the recorded trajectory from its snapshot at half "
+        "its iterations and its final model; the renders pair with the recorded frames in OUT/<scene>__<cycle-run name>.npz "
+        "(make-pairs format, with cycle_from and, as reference views, A's renders). No novel-view truth is read.",
+    )
+    p.add_argument("--run", required=True, help="run A: a reconstruction run directory with model.pt")
+    p.add_argument("--trajectory", required=True, help="the lateral drive run A renders and run B trains on (e.g. shift@3)")
+    p.add_argument("--cycle-run", required=True, help="run B's run directory (created, or resumed after a kill)")
+    p.add_argument("--out", required=True, help="directory receiving the pairs file")
+    p.add_argument("--scene", default=None, help="scene directory (default: the scene named in run A's run.json)")
+    p.add_argument("--preset", default="default", choices=PRESETS, help="run B's size preset (its backbone is run A's)")
+    add_config_options(p, ReconConfig, RECON_TRAIN_OPTIONS, defaults=make_config(MODEL_TYPES[0], "default"),
+                       title="run B's training (ReconConfig; defaults shown for --preset default)")
+    _add_threads_option(p)
+    p.set_defaults(func=run_make_cycle_pairs)
 
     p = subparsers.add_parser("train-restorer", help="fine-tune a world model into DriveRestorer on restoration pairs")
     p.add_argument("--arch", required=True, choices=ARCHS, help="restorer backbone (dd2_mask fine-tunes a dd2 world model with masks)")
@@ -193,7 +217,6 @@ def run_train_autoencoder(args: argparse.Namespace) -> int:
 
 
 def run_pretrain_world_model(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.generative.config import DiffusionConfig, UNetConfig
     from recondreamer.generative.data import (
         load_corpus_sequences,
@@ -242,8 +265,25 @@ def run_make_pairs(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_make_cycle_pairs(args: argparse.Namespace) -> int:
+    from recondreamer.device import resolve_device
+    from recondreamer.generative.cycle import make_cycle_pairs
+    from recondreamer.generative.pairs import run_scene_path
+    from recondreamer.recon.checkpoint import read_record, resolve_model_path
+
+    _set_threads(args)
+    source = Path(args.run)
+    if not (source / "model.pt").is_file():
+        raise RecondreamerError(f"--run {source}: no final model {source / 'model.pt'} (train run A first)")
+    backbone = read_record(resolve_model_path(source / "model.pt"))["model_type"]
+    config = apply_options(args, make_config(backbone, args.preset), RECON_TRAIN_OPTIONS)
+    resolve_device(config.device, "--device")
+    scene = args.scene if args.scene is not None else run_scene_path(source)
+    LOG.info("wrote %s", make_cycle_pairs(source, scene, args.trajectory, args.cycle_run, args.out, config))
+    return 0
+
+
 def run_train_restorer(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.generative.data import find_pairs_files, load_pair_sequences
     from recondreamer.generative.inference import load_world_model
     from recondreamer.generative.training import train_restorer
@@ -270,7 +310,6 @@ def run_train_restorer(args: argparse.Namespace) -> int:
 
 
 def run_train_refiner(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.generative.data import find_pairs_files
     from recondreamer.generative.training import train_refiner
 
@@ -285,7 +324,6 @@ def run_train_refiner(args: argparse.Namespace) -> int:
 
 def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
     """Original frames (reference) and structure maps of the trajectory's cameras."""
-    from recondreamer.errors import RecondreamerError
     from recondreamer.generative.data import scene_structure
     from recondreamer.scene import load_scene
     from recondreamer.scene.trajectories import trajectory_cam_to_world
@@ -301,7 +339,6 @@ def _scene_conditions(scene_dir: str, trajectory: str, needs_structure: bool):
 
 
 def run_restore(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
     from recondreamer.frames_io import read_clip, write_frames
     from recondreamer.generative.inference import load_restorer, restore_clip
@@ -329,7 +366,6 @@ def run_restore(args: argparse.Namespace) -> int:
 
 
 def run_dd4d_generate(args: argparse.Namespace) -> int:
-    from recondreamer.errors import RecondreamerError
     from recondreamer.io import check_replaceable
     from recondreamer.frames_io import write_frames
     from recondreamer.generative.inference import generate_clip, load_world_model

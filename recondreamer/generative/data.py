@@ -85,6 +85,7 @@ class Sequence:
     target_frames: np.ndarray | None = None  # (T,H,W,3) uint8, kept for image-space losses
     sky_masks: np.ndarray | None = None  # (T,H,W) bool
     vanishing: np.ndarray | None = None  # (T,2)
+    pair_kind: str | None = None  # pairs only: what the file teaches (``pair_kind``)
 
     @property
     def num_frames(self) -> int:
@@ -169,6 +170,17 @@ def load_pairs_file(path: Path) -> dict:
     if "sky" in content:
         content["sky"] = content["sky"].astype(bool, copy=False)
     return content
+
+
+def pair_kind(content: dict) -> str:
+    """What a pairs file teaches: ``snapshot`` (under-trained renders of the recorded trajectory with
+    the recorded frames, the paper's pairs), ``cycle:<drive>`` (a reconstruction trained on renders of
+    a lateral drive, rendering the recorded trajectory: cycle.py) or ``truth:<trajectory>`` (renders
+    of a novel trajectory against its true views: novel-view truth, beyond the paper)."""
+    if "cycle_from" in content:
+        return f"cycle:{content['cycle_from']}"
+    trajectory = str(content.get("trajectory", "original"))
+    return "snapshot" if trajectory == "original" else f"truth:{trajectory}"
 
 
 def find_pairs_files(dirs: list[str | os.PathLike]) -> list[Path]:
@@ -298,6 +310,7 @@ def load_pair_sequences(files: list[Path], autoencoder: Autoencoder, with_struct
                 target_frames=mapped["gt"] if keep_frames else None,
                 sky_masks=mapped.get("sky"),
                 vanishing=content["vanishing"],
+                pair_kind=pair_kind(content),
             )
         )
         del content  # free this file's decompressed arrays before the next file is read

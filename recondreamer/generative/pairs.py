@@ -16,6 +16,10 @@ renders of late snapshots barely show. One ``SCENE__RUN__TRAJECTORY.npz`` per no
 uint8 holds the recorded frames of the same timestamps: the views the reconstruction was trained
 on, which a view-conditioned restorer (``UNetConfig.view_condition``, beyond the paper) takes as
 a further input.
+
+Cycle pairs (``cycle.py``) are pairs along the recorded trajectory whose renders come from a
+reconstruction trained on another's renders of a lateral drive; ``cycle_from`` names that drive, and
+``view`` holds the renders it was trained on.
 """
 
 from __future__ import annotations
@@ -92,9 +96,12 @@ def make_pairs_for_run(
     return written
 
 
-def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict, out_dir: Path, view: np.ndarray | None = None) -> Path:
+def _write_trajectory_pairs(
+    run_dir: Path, scene, trajectory: str, models: dict, out_dir: Path, view: np.ndarray | None = None, cycle_from: str | None = None
+) -> Path:
     """Render ``trajectory`` with each model; write the pairs file. ``view`` (T,H,W,3) uint8: the
-    reference views to store (default: the recorded frames on a novel trajectory, none on the original)."""
+    reference views to store (default: the recorded frames on a novel trajectory, none on the original);
+    ``cycle_from``: the lateral drive a cycle run was trained on (``cycle.py``)."""
     from recondreamer.recon import render_trajectory
     from recondreamer.generative.data import (
         scene_structure,
@@ -132,6 +139,8 @@ def _write_trajectory_pairs(run_dir: Path, scene, trajectory: str, models: dict,
         arrays["sky"] = np.stack(sky).astype(bool)
     if view is not None:
         arrays["view"] = view
+    if cycle_from is not None:
+        arrays["cycle_from"] = np.array(cycle_from)
     suffix = "" if trajectory == "original" else f"__{trajectory}"
     out = out_dir / f"{scene.scene_id}__{run_dir.name}{suffix}.npz"
     with atomic_path(out) as tmp, open(tmp, "wb") as handle:

@@ -416,14 +416,16 @@ def train_restorer(
     )
     stats["total_steps"], stats["total_cpu_minutes"] = training_totals(stats)
     scenes = {seq.scene_id for seq in sequences}
+    kinds = {seq.pair_kind for seq in sequences if seq.pair_kind is not None}
     if initial is not None:
         initial_steps, initial_minutes = training_totals(initial.get("metrics", {}))
         stats["total_steps"] += initial_steps
         stats["total_cpu_minutes"] += initial_minutes
         scenes |= set(initial.get("training_scenes", []))
+        kinds |= set(initial.get("pair_kinds", []))
     save_checkpoint(
         out, "restorer", arch, config, unet.state_dict(), autoencoder=autoencoder_payload(world.autoencoder), metrics=stats,
-        world_model=str(world_model_path), training_scenes=sorted(scenes),
+        world_model=str(world_model_path), training_scenes=sorted(scenes), pair_kinds=sorted(kinds),
         initialised_from=None if init_from is None else str(init_from),
     )
     finish_job(out)

@@ -97,6 +97,16 @@ def restorer_recipe(payload: dict) -> list[str]:
         changes.append(f"{restore['sample_steps']}-step DDIM sampling at strength {restore.get('strength', 1.0):g}")
     if payload.get("refiner"):
         changes.append("a pixel refiner on the restorer's output")
+    kinds = payload.get("pair_kinds", [])
+    cycles = [kind.split(":", 1)[1] for kind in kinds if kind.startswith("cycle:")]
+    truths = [kind.split(":", 1)[1] for kind in kinds if kind.startswith("truth:")]
+    if cycles:
+        changes.append(
+            f"cycle pairs: reconstructions trained on renders of the lateral drives {', '.join(cycles)} render the recorded "
+            "trajectory, paired with the recorded frames (no novel-view truth)"
+        )
+    if truths:
+        changes.append(f"novel-view truth pairs along {', '.join(truths)} (beyond the paper: the loop never has these views)")
     return changes
 
 
@@ -108,6 +118,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
     # DriveRestorer backbones (and the world models they start from)
     restorer_budget = []
     recipes: dict[str, list[str]] = {}
+    novel_truth = False  # whether any restorer learned from novel-view truth
     for arch in experiment["restorer_backbones"]:
         path = Path(restorer_checkpoint_path(config, arch))
         restorer = _load(path)
@@ -127,6 +138,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         lines_models.append(f"{label}: a stand-in, a {_millions(restorer.parameters)}-parameter latent UNet ({origin}).")
         restorer_budget.append(f"{arch} {steps}")
         recipes[arch] = restorer_recipe(restorer.payload)
+        novel_truth |= any(kind.startswith("truth:") for kind in restorer.payload.get("pair_kinds", []))
 
     autoencoder = _load(Path(model_path(config, "autoencoder")))
     if autoencoder is not None:
@@ -171,10 +183,15 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         )
     if weights is None and config["restorer"]["pair_corpus_scenes"]:
         pair_sources.append(f"{config['restorer']['pair_corpus_scenes']} corpus scene reconstruction(s)")
+    if weights is None and config["restorer"]["cycle_corpus_scenes"] and config["restorer"]["cycle_trajectories"]:
+        pair_sources.append(
+            f"cycles on {config['restorer']['cycle_corpus_scenes']} corpus scene(s) along {', '.join(config['restorer']['cycle_trajectories'])}"
+        )
     budgets = [
         f"Training budgets: every reconstruction (baseline, DriveDreamer4D, ReconDreamer) {iterations} iterations; "
         f"DriveRestorer fine-tuning steps: {', '.join(restorer_budget) or 'n/a'}; restoration pairs from {' and '.join(pair_sources) or 'nothing'} "
-        "(under-trained renders with their ground truth, never novel-view truth).",
+        + ("(renders of the recorded trajectory with its frames, never novel-view truth)." if not novel_truth else
+           "(including novel-view truth: beyond the paper, see the recipe line)."),
     ]
     recipe_lines = []
     distinct = {tuple(v) for v in recipes.values()}

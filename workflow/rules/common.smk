@@ -106,6 +106,10 @@ def _check_config():
         problems.append("eval_models.holdout_scenes must be smaller than synthetic.corpus.num_scenes")
     if config["restorer"]["pair_corpus_scenes"] > config["synthetic"]["corpus"]["num_scenes"]:
         problems.append("restorer.pair_corpus_scenes exceeds synthetic.corpus.num_scenes")
+    if config["restorer"]["cycle_corpus_scenes"] > config["synthetic"]["corpus"]["num_scenes"]:
+        problems.append("restorer.cycle_corpus_scenes exceeds synthetic.corpus.num_scenes")
+    if config["restorer"]["cycle_corpus_scenes"] and not config["restorer"]["cycle_trajectories"]:
+        problems.append("restorer.cycle_corpus_scenes is set but restorer.cycle_trajectories is empty (name the lateral drives, e.g. [shift@3, shift@6])")
     unshared = sorted(set(config["restorer"]["pair_segment_backbones"]) - set(plan.backbones))
     if unshared:
         problems.append(f"restorer.pair_segment_backbones {unshared} must be among experiment.recon_backbones (their baseline runs provide the pairs)")
@@ -149,6 +153,8 @@ SEGMENTS = list(PLAN.segments)
 RUNS = PLAN.runs()
 CORPUS_SCENES = [f"corpus-{i:03d}" for i in range(config["synthetic"]["corpus"]["num_scenes"])]
 PAIR_CORPUS_SCENES = CORPUS_SCENES[: config["restorer"]["pair_corpus_scenes"]]
+CYCLE_CORPUS_SCENES = CORPUS_SCENES[: config["restorer"]["cycle_corpus_scenes"]]
+CYCLE_BACKBONE = "street"  # run A of every cycle: the corpus scene's Street Gaussians run (recon.smk)
 WORLD_MODEL_OF = {"sd": "sd", "svd": "svd", "dd2": "dd2", "dd2_mask": "dd2"}  # dd2_mask fine-tunes the dd2 world model
 TABLES = [1, 2, 4, 5] if config["preference"]["judge"] == "none" else [1, 2, 3, 4, 5]
 # Scheduling priorities (config/README.md, "Time"). No ReconDreamer run can start before the
@@ -180,6 +186,7 @@ wildcard_constraints:
     arch="sd|svd|dd2",
     stride=r"\d+\.\d+",
     trajectory=r"shift@-?\d+(\.\d+)?|lane_change",
+    cycle_trajectory=r"shift@-?\d+(\.\d+)?|lane_change",
     run=r"(baseline|dd4d)-(street|pvg|deformable|s3)|recondreamer-(street|pvg|deformable|s3)-(sd|svd|dd2|dd2_mask|truth)-stride\d+\.\d+",
 
 
@@ -281,6 +288,7 @@ def pair_dirs():
     if config["restorer"]["pair_segment_backbones"]:
         dirs += [results("pairs", "segments", s) for s in SEGMENTS]
     dirs += [results("pairs", "corpus", c) for c in PAIR_CORPUS_SCENES]
+    dirs += [results("pairs", "cycle", c, t) for c in CYCLE_CORPUS_SCENES for t in config["restorer"]["cycle_trajectories"]]
     return dirs
 
 

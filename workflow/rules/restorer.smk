@@ -47,6 +47,32 @@ rule make_pairs_corpus:
         "--stages {params.stages} --threads {threads} > {log} 2>&1"
 
 
+rule make_cycle_pairs_corpus:
+    # Cycle pairs (docs/foundation.md): the corpus scene's Street Gaussians run renders a lateral drive,
+    # a second run (cycle_runs/, resumed after a kill) trains on those renders alone and renders the
+    # recorded trajectory, paired with the recorded frames.
+    input:
+        scene=results("corpus", "{corpus_scene}"),
+        model=results("corpus_runs", "{corpus_scene}", CYCLE_BACKBONE, "model.pt"),
+    output:
+        directory(results("pairs", "cycle", "{corpus_scene}", "{cycle_trajectory}")),
+    params:
+        run=lambda wildcards, input: parent(input.model),
+        cycle_run=lambda wildcards: results("cycle_runs", wildcards.corpus_scene, wildcards.cycle_trajectory),
+        options=RECON_OPTIONS,
+    threads: config["threads"]["recon"]
+    priority: RESTORER_PATH_PRIORITY
+    conda:
+        "../envs/recondreamer.yaml"
+    log:
+        log_file("make_cycle_pairs_corpus", "{corpus_scene}/{cycle_trajectory}"),
+    benchmark:
+        benchmark_file("make_cycle_pairs_corpus", "{corpus_scene}/{cycle_trajectory}")
+    shell:
+        "recondreamer make-cycle-pairs --run {params.run} --scene {input.scene} --trajectory {wildcards.cycle_trajectory} "
+        "--cycle-run {params.cycle_run} --out {output} {params.options} --threads {threads} > {log} 2>&1"
+
+
 rule train_restorer:
     input:
         world_model=lambda wildcards: results("models", f"world_model_{WORLD_MODEL_OF[wildcards.restorer]}.pt"),
