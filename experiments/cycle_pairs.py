@@ -1,6 +1,6 @@
 """Cycle pairs: novel-view degradation along the recorded trajectory, without novel-view truth.
 
-    python experiments/cycle_pairs.py --out results/novel-view-pairs [--scenes 16] [--steps 3000] [--arms cycle view]
+    python experiments/cycle_pairs.py --out results/novel-view-pairs [--scenes 16] [--steps 3000] [--arms cycle view deep]
 
 Run it on the folder of experiments/novel_view_pairs.py (it reuses that folder's corpus scenes,
 Street Gaussians runs, pairs and gate pairs, and makes what is missing); docs/foundation.md cites
@@ -21,6 +21,8 @@ on the gate scenes:
           the view the reconstruction was trained on at the same timestamp. At the gate that is the
           recorded frame beside a novel-trajectory render; in a cycle pair it is A's shift@K render
           beside B's render (what B was trained on). The foundation's pairs have none.
+  deep:   the cycle arm with a restorer UNet of two residual blocks per level (``--blocks-per-level 2``;
+          the second starts as the identity): does capacity limit what the pairs teach?
 Every step skips what exists, so a stopped run continues; two jobs run side by side.
 """
 
@@ -49,7 +51,7 @@ from early_snapshot_pairs import (  # the sibling experiments' steps, shared
 
 CYCLE_SHIFTS = ("shift@3", "shift@6")
 CYCLE_ITERATIONS = 700  # run B's, as run A's (its snapshot: half of them)
-ARMS = {"cycle": (), "view": ("--view-condition",)}  # restorer name -> extra train-restorer flags
+ARMS = {"cycle": (), "view": ("--view-condition",), "deep": ("--blocks-per-level", "2")}  # restorer name -> extra train-restorer flags
 
 
 def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Path) -> Path:
@@ -71,7 +73,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable; experiments/novel_view_pairs.py's)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
     parser.add_argument("--steps", type=int, default=FOUNDATION_RESTORER_STEPS, help="restorer training steps (default 3000, as the foundation)")
-    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default both)")
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default all)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     out = args.out
@@ -97,7 +99,7 @@ def main() -> int:
         restorers = dict(zip(args.arms, pool.map(
             lambda arm: train_dd2_mask([*recorded, out / "pairs_cycle"], restorer_path(out, arm, args.steps), args.steps, out, ARMS[arm]), args.arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
-    sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "shipped": "foundation (original)"}
+    sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "deep": "same, 2 blocks per level", "shipped": "foundation (original)"}
     print_gates(restorers, sources, out)
     return 0
 
