@@ -21,7 +21,6 @@ from recondreamer.generative.config import (
     RestoreConfig,
     TrainConfig,
 )
-
 from recondreamer.recon.commands import TRAIN_OPTIONS as RECON_TRAIN_OPTIONS
 from recondreamer.recon.config import MODEL_TYPES, PRESETS, ReconConfig, make_config
 
