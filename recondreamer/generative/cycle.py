@@ -30,7 +30,6 @@ from recondreamer.errors import RecondreamerError
 LOG = logging.getLogger(__name__)
 
 CYCLE_SOURCE = "cycle"  # the training-view source tag of run B's views
-ORIGINAL = "original"
 
 
 def cycle_snapshot_step(iterations: int) -> int:
@@ -56,7 +55,7 @@ def make_cycle_pairs(
     from recondreamer.scene import load_scene
     from recondreamer.scene.trajectories import trajectory_cam_to_world
 
-    if trajectory == ORIGINAL:
+    if trajectory == "original":
         raise RecondreamerError("--trajectory original: a cycle needs a drive away from the recorded trajectory (e.g. shift@3)")
     source_model = Path(source_run) / "model.pt"
     if not source_model.is_file():
@@ -80,4 +79,4 @@ def make_cycle_pairs(
     cycle_run = Path(cycle_run)
     final = train_scene(scene, config, cycle_run, training_set=TrainingSet(scene.K, scene.width, scene.height, views))
     models = {snapshot: load_model(cycle_run / "snapshots" / f"step_{snapshot:06d}.pt"), config.iterations: final}
-    return _write_trajectory_pairs(cycle_run, scene, ORIGINAL, models, Path(out_dir), view=renders, cycle_from=trajectory)
+    return _write_trajectory_pairs(cycle_run, scene, "original", models, Path(out_dir), view=renders, cycle_from=trajectory)

@@ -74,6 +74,12 @@ def recon_iterations(config: Mapping) -> int:
     return int(recon["iterations"]) if recon.get("iterations") else make_config("street", recon["preset"]).iterations
 
 
+def pair_kind_trajectories(payload: dict, kind: str) -> list[str]:
+    """The trajectories of a restorer's pairs of one kind (``cycle`` or ``truth``; its ``pair_kinds``
+    are ``generative.data.pair_kind`` values such as ``cycle:shift@3``)."""
+    return [entry.split(":", 1)[1] for entry in payload.get("pair_kinds", []) if entry.startswith(f"{kind}:")]
+
+
 def restorer_recipe(payload: dict) -> list[str]:
     """The changes to the paper's DriveRestorer recipe that a restorer checkpoint has on."""
     config = payload.get("config", {})
@@ -97,9 +103,7 @@ def restorer_recipe(payload: dict) -> list[str]:
         changes.append(f"{restore['sample_steps']}-step DDIM sampling at strength {restore.get('strength', 1.0):g}")
     if payload.get("refiner"):
         changes.append("a pixel refiner on the restorer's output")
-    kinds = payload.get("pair_kinds", [])
-    cycles = [kind.split(":", 1)[1] for kind in kinds if kind.startswith("cycle:")]
-    truths = [kind.split(":", 1)[1] for kind in kinds if kind.startswith("truth:")]
+    cycles, truths = pair_kind_trajectories(payload, "cycle"), pair_kind_trajectories(payload, "truth")
     if cycles:
         changes.append(
             f"cycle pairs: reconstructions trained on renders of the lateral drives {', '.join(cycles)} render the recorded "
@@ -138,7 +142,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         lines_models.append(f"{label}: a stand-in, a {_millions(restorer.parameters)}-parameter latent UNet ({origin}).")
         restorer_budget.append(f"{arch} {steps}")
         recipes[arch] = restorer_recipe(restorer.payload)
-        novel_truth |= any(kind.startswith("truth:") for kind in restorer.payload.get("pair_kinds", []))
+        novel_truth |= bool(pair_kind_trajectories(restorer.payload, "truth"))
 
     autoencoder = _load(Path(model_path(config, "autoencoder")))
     if autoencoder is not None:
