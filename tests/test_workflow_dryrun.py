@@ -275,8 +275,10 @@ def test_foundation_config_dry_run_builds_every_foundation_model_and_its_gates(t
     result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "config/foundation.yaml")
     assert result.returncode == 0, result.stderr
     expected = {
-        "synth_corpus_scene": 40, "synth_gate_scene": 4, "train_gate_recon": 4, "make_gate_pairs": 4,
-        "train_corpus_recon": 16 * 4, "make_pairs_corpus": 16, "train_autoencoder": 1, "pretrain_world_model": 3,
+        "synth_corpus_scene": 120, "synth_gate_scene": 4, "train_gate_recon": 4, "make_gate_pairs": 4,
+        # Street Gaussians runs on all 120 scenes (the cycles' run A), the three other backbones on the 16 pairs scenes.
+        "train_corpus_recon": 120 + 16 * 3, "make_pairs_corpus": 16, "make_cycle_pairs_corpus": 120 * 2,
+        "train_autoencoder": 1, "pretrain_world_model": 3,
         "train_restorer": 4, "train_eval_models": 1, "foundation_gates": 1, "publish_weights": 1, "all": 1,
     }
     assert job_counts(result.stdout + result.stderr) == {**expected, "total": sum(expected.values())}
@@ -287,6 +289,9 @@ def test_foundation_config_dry_run_builds_every_foundation_model_and_its_gates(t
     assert "recondreamer train-autoencoder " in shell and "recondreamer train-eval-models " in shell
     assert re.search(r"recondreamer make-pairs --run \S+gate_runs/gate-000/street .*--trajectories original shift@3 shift@6", shell)
     assert "recondreamer weights publish " in shell and "--out weights " in shell
+    # Every restorer learns from the cycle pairs of every corpus scene, along both lateral drives.
+    for arch, pairs in re.findall(r"train-restorer --arch (\w+) .*?--pairs (.*?) --out ", shell):
+        assert len(re.findall(r"pairs/cycle/corpus-\d+/shift@[36]", pairs)) == 240, arch
     # Restoration pairs come from corpus reconstructions by all four backbones, never from an evaluation segment.
     assert "make_pairs_segment" not in shell and "train-recon --scene results/foundation/scenes/" not in shell
 
