@@ -29,10 +29,11 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cycle_pairs import CYCLE_SHIFTS, cycle_pairs  # the sibling experiments' steps, shared
+from cycle_pairs import CYCLE_SHIFTS  # the sibling experiments' steps, shared
 from early_snapshot_pairs import GATE_SEEDS, SHIPPED, run
 
 TRAJECTORIES = (*CYCLE_SHIFTS, "original")
+CYCLE_SCRIPT = Path(__file__).resolve().parent / "cycle_pairs.py"  # its --_cycle entry makes one scene's cycle pairs
 
 
 def adapt(base: Path, pairs: Path, checkpoint: Path, steps: int, ema_decay: float, logs: Path) -> Path:
@@ -86,7 +87,7 @@ def main() -> int:
     def cycle_job(job: tuple[str, str]) -> None:
         gate, shift = job
         with open(out / "logs" / f"adapt_cycle_{gate}_{shift}.log", "w") as log:
-            subprocess.run([sys.executable, __file__, "--_cycle", str(out / "gate_scenes" / gate), str(out / "gate_runs" / gate), shift,
+            subprocess.run([sys.executable, str(CYCLE_SCRIPT), "--_cycle", str(out / "gate_scenes" / gate), str(out / "gate_runs" / gate), shift,
                             str(out / "adapt_cycle_runs" / gate / shift), str(out / "adapt_pairs" / gate)], check=True, stdout=log, stderr=subprocess.STDOUT)
 
     with ThreadPoolExecutor(2) as pool:
@@ -115,7 +116,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    if len(sys.argv) > 1 and sys.argv[1] == "--_cycle":
-        cycle_pairs(Path(sys.argv[2]), Path(sys.argv[3]), sys.argv[4], Path(sys.argv[5]), Path(sys.argv[6]))
-    else:
-        sys.exit(main())
+    sys.exit(main())
