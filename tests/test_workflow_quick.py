@@ -25,7 +25,7 @@ def on_weights(root: Path, weights: str) -> tuple[str, str]:
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_quick_foundation_publishes_a_verified_weight_set(quick_foundation):
-    for command in (*TRAINING_COMMANDS, "foundation-gates", "weights publish"):
+    for command in (*TRAINING_COMMANDS, "make-cycle-pairs", "foundation-gates", "weights publish"):
         assert f"recondreamer {command} " in quick_foundation.log, command
     weights = quick_foundation.root / QUICK_WEIGHTS
     verify = subprocess.run([sys.executable, "-m", "recondreamer", "weights", "verify", str(weights)], check=False, capture_output=True, text=True)
@@ -37,6 +37,7 @@ def test_quick_foundation_publishes_a_verified_weight_set(quick_foundation):
     report = (weights / "GATES.md").read_text()
     for row in ("| dd2_mask | shift@3 |", "| dd2_mask | shift@6 |", "| dd2_mask | original |", "| sd | shift@6 |", "| autoencoder |", "| vehicle detector |"):
         assert row in report, row
+    assert "- cycle pairs:" in report  # the recipe's addition, named
 
 
 @pytest.mark.slow
