@@ -13,8 +13,8 @@ What the adapted restorer sees of its scene is what the reconstruction trains on
 frames and LiDAR) and the reconstruction's own renders; no frame of a lateral drive. Its
 novel-trajectory columns (shift@3, shift@6) are therefore measured on truth it never saw. Its
 original-trajectory column is not a clean measure: the recorded frames it is scored against were
-its fine-tuning targets. ``foundation/gates.py`` refuses restorers trained on a gate scene for that
-reason, so this script scores the clips itself with the same functions.
+its fine-tuning targets. ``foundation/gates.py``'s ``restorer_gate`` refuses restorers trained on a
+gate scene for that reason, so this script scores with its ``gate_scores`` directly.
 Every step skips what exists, so a stopped run continues; two jobs run side by side.
 """
 
@@ -49,17 +49,13 @@ def score(checkpoint: Path, gate_pairs: Path) -> dict[str, dict]:
     """Trajectory -> the foundation's clip scores of ``checkpoint`` on one scene's gate pairs."""
     import torch
 
-    from recondreamer.foundation.gates import gate_clips
+    from recondreamer.foundation.gates import gate_clips, gate_scores
     from recondreamer.generative.data import find_pairs_files
-    from recondreamer.generative.inference import load_restorer, restore_clip
-    from recondreamer.generative.scoring import pairs_kind, score_clip, summarise
+    from recondreamer.generative.inference import load_restorer
 
     torch.set_num_threads(1)
     restorer = load_restorer(checkpoint)
-    clips = gate_clips(find_pairs_files([gate_pairs]), restorer.unet_config.uses_structure)
-    return {trajectory: summarise([score_clip(pairs_kind(trajectory), render, restore_clip(restorer, render, structure), truth)
-                                   for _, render, truth, structure, _ in items])
-            for trajectory, items in clips.items()}
+    return gate_scores(restorer, gate_clips(find_pairs_files([gate_pairs]), restorer.unet_config.uses_structure), views=False)
 
 
 def pooled(per_scene: list[dict[str, dict]], trajectory: str, key: str) -> float:

@@ -46,13 +46,25 @@ def gate_clips(pair_files: list[Path], uses_structure: bool) -> dict[str, list[t
     return clips
 
 
+def gate_scores(restorer, clips: dict[str, list[tuple]], views: bool) -> dict[str, dict]:
+    """Trajectory -> the summarised clip scores (PSNR, gain, flicker of render and restored clip) of
+    ``restorer`` on ``gate_clips``' clips, restored with their reference views when ``views``."""
+    from recondreamer.generative.inference import restore_clip
+    from recondreamer.generative.scoring import pairs_kind, score_clip, summarise
+
+    return {
+        trajectory: summarise([score_clip(pairs_kind(trajectory), render, restore_clip(restorer, render, structure, view=view if views else None), truth)
+                               for _, render, truth, structure, view in items])
+        for trajectory, items in sorted(clips.items())
+    }
+
+
 def restorer_gate(path: str | Path, pair_files: list[Path], withhold_views: bool = False) -> dict:
     """PSNR of render and restored clip against the truth, gain and flicker, per trajectory.
     ``withhold_views`` restores without the reference views a view-conditioned restorer takes
     (what they add to it)."""
     from recondreamer.generative.checkpoint import load_checkpoint
-    from recondreamer.generative.inference import load_restorer, restore_clip
-    from recondreamer.generative.scoring import pairs_kind, score_clip, summarise
+    from recondreamer.generative.inference import load_restorer
 
     restorer = load_restorer(path)
     trained_on = set(load_checkpoint(path, "restorer").get("training_scenes", []))
@@ -64,9 +76,7 @@ def restorer_gate(path: str | Path, pair_files: list[Path], withhold_views: bool
     if views and any(view is None for trajectory, items in clips.items() if trajectory != "original" for *_, view in items):
         raise RecondreamerError(f"{path}: a view-conditioned restorer needs gate pairs with reference views (make-pairs writes them on novel trajectories)")
     result: dict = {"arch": restorer.arch}
-    for trajectory, items in sorted(clips.items()):
-        scores = summarise([score_clip(pairs_kind(trajectory), render, restore_clip(restorer, render, structure, view=view if views else None), truth)
-                            for _, render, truth, structure, view in items])
+    for trajectory, scores in gate_scores(restorer, clips, views).items():
         render_psnr, restored_psnr = scores["psnr_degraded"], scores["psnr_restored"]
         render_flicker, restored_flicker = scores["flicker_degraded"], scores["flicker_restored"]
         result[trajectory] = {
