@@ -126,12 +126,23 @@ class TestPooledFID:
         assert pooled["num_samples"] == [192, 192] and pooled["fid_dim"] == 16
         assert pooled["fid"] < 0.25 * per_segment
 
+    def test_a_precomputed_basis_gives_the_same_value(self):
+        # The findings' bootstrap passes the reference's basis, computed once, to every run.
+        rng = np.random.default_rng(11)
+        a, b = rng.normal(size=(96, 32)), rng.normal(loc=0.3, size=(96, 32))
+        dim = frechet.fid_dimension(96, 32)
+        expected = frechet.pooled_fid_from_features(a, b)["fid"]
+        assert frechet.pooled_fid_from_features(a, b, dim, basis=frechet.reference_basis(b, dim))["fid"] == expected
+
     def test_exceptions(self):
         rng = np.random.default_rng(10)
         with pytest.raises(ValueError, match="dimension must lie"):
             frechet.pooled_fid_from_features(rng.normal(size=(20, 4)), rng.normal(size=(20, 4)), dim=5)
         with pytest.raises(ValueError, match="same D"):
             frechet.pooled_fid_from_features(rng.normal(size=(20, 4)), rng.normal(size=(20, 3)))
+        reference = rng.normal(size=(20, 4))
+        with pytest.raises(ValueError, match="basis must be"):
+            frechet.pooled_fid_from_features(rng.normal(size=(20, 4)), reference, dim=3, basis=frechet.reference_basis(reference, 2))
 
 
 # ---------------------------------------------------------------- NTA-IoU matching rules

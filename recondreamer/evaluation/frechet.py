@@ -151,12 +151,19 @@ def fid_dimension(num_samples: int, feature_dim: int) -> int:
     return int(max(1, min(feature_dim, num_samples // MIN_SAMPLES_PER_DIMENSION)))
 
 
-def pooled_fid_from_features(features: np.ndarray, reference: np.ndarray, dim: int | None = None) -> dict:  # (N1,D), (N2,D)
+def pooled_fid_from_features(
+    features: np.ndarray,  # (N1,D)
+    reference: np.ndarray,  # (N2,D)
+    dim: int | None = None,
+    basis: tuple[np.ndarray, np.ndarray] | None = None,  # reference_basis(reference, dim): (D,), (D,dim)
+) -> dict:
     """FID of ``features`` against ``reference`` in the reference's leading principal subspace.
 
     ``dim`` defaults to :func:`fid_dimension` of the smaller set; with ``dim`` equal to the
     feature dimension the projection is a rotation and the value equals
-    :func:`fid_from_features` (FID is rotation invariant).
+    :func:`fid_from_features` (FID is rotation invariant). ``basis``, when given, must be
+    :func:`reference_basis` of this ``reference`` and ``dim``: callers that score many feature
+    sets against one reference (the findings' bootstrap) compute its eigen-decomposition once.
     """
     features, reference = np.asarray(features, np.float64), np.asarray(reference, np.float64)
     if features.ndim != 2 or reference.ndim != 2 or features.shape[1] != reference.shape[1]:
@@ -166,7 +173,11 @@ def pooled_fid_from_features(features: np.ndarray, reference: np.ndarray, dim: i
         dim = fid_dimension(min(len(features), len(reference)), feature_dim)
     if not 1 <= dim <= feature_dim:
         raise ValueError(f"FID dimension must lie in 1..{feature_dim}, got {dim}")
-    mean, basis = reference_basis(reference, dim)
+    if basis is None:
+        basis = reference_basis(reference, dim)
+    mean, basis = basis
+    if mean.shape != (feature_dim,) or basis.shape != (feature_dim, dim):
+        raise ValueError(f"basis must be a mean ({feature_dim},) and directions ({feature_dim}, {dim}), got {mean.shape} and {basis.shape}")
     result = fid_from_features((features - mean) @ basis, (reference - mean) @ basis)
     return {**result, "feature_dim": feature_dim, "fid_dim": int(dim), "projection": "leading principal directions of the reference features"}
 
