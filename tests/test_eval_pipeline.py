@@ -164,6 +164,19 @@ def test_average_precision_with_ignored_vehicles():
     assert gates.average_precision_50([(np.zeros((0, 4)), np.zeros(0))], gt, ignore)["ap50"] == 0.0
 
 
+def test_detector_gate_reports_ap50_per_scene():
+    gt = [np.array([[0, 0, 10, 10]], float)] * 2
+    ignore = [np.zeros((0, 4))] * 2
+    found = (np.array([[0, 0, 10, 10]], float), np.array([0.9]))
+    missed = (np.array([[100, 100, 110, 110]], float), np.array([0.8]))
+    result = gates.detector_gate([found, missed], gt, ignore, 200, 200, 0.5, scene_ids=["scene-a", "scene-b"])
+    assert result["ap50_per_scene"] == {"scene-a": pytest.approx(1.0), "scene-b": 0.0}
+    assert result["ap50"] == pytest.approx(0.5)  # pooled: half the vehicles found, at precision 1
+    assert "ap50_per_scene" not in gates.detector_gate([found, missed], gt, ignore, 200, 200, 0.5)
+    with pytest.raises(ValueError, match="scene_ids must name every frame"):
+        gates.detector_gate([found, missed], gt, ignore, 200, 200, 0.5, scene_ids=["scene-a"])
+
+
 # ---------------------------------------------------------------- evaluate command and bad inputs
 
 

@@ -85,7 +85,8 @@ def _gate(kind: str, model: torch.nn.Module, split, images: np.ndarray) -> dict:
     if kind == "vehicle_detector":
         detections = inference.detect_vehicles(model, images, gates.AP_SCORE_FLOOR)
         return gates.detector_gate(
-            detections, [s.eval_boxes for s in heldout], [s.ignore_boxes for s in heldout], split.width, split.height, DETECTION_SCORE_THRESHOLD
+            detections, [s.eval_boxes for s in heldout], [s.ignore_boxes for s in heldout], split.width, split.height, DETECTION_SCORE_THRESHOLD,
+            scene_ids=[s.scene_id for s in heldout],
         )
     if kind == "lane_segmenter":
         return gates.lane_gate(list(inference.segment_lanes(model, images)), [s.lane_mask for s in heldout], [s.map_lane_mask for s in heldout])

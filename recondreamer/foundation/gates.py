@@ -119,7 +119,13 @@ def eval_model_gates(metrics_file: str | Path) -> dict:
     detector, lanes = gates.get("vehicle_detector", {}), gates.get("lane_segmenter", {})
     heldout = metrics.get("corpus", {}).get("heldout_scenes")
     return {
-        "vehicle_detector": {"ap50": detector.get("ap50"), "gate": DETECTOR_AP50_GATE, "passed": bool(detector.get("passed")), "heldout_scenes": heldout},
+        "vehicle_detector": {
+            "ap50": detector.get("ap50"),
+            **({"ap50_per_scene": detector["ap50_per_scene"]} if "ap50_per_scene" in detector else {}),
+            "gate": DETECTOR_AP50_GATE,
+            "passed": bool(detector.get("passed")),
+            "heldout_scenes": heldout,
+        },
         "lane_segmenter": {"lane_iou": lanes.get("lane_iou"), "gate": LANE_IOU_GATE, "passed": bool(lanes.get("passed")), "heldout_scenes": heldout},
     }
 
@@ -168,6 +174,10 @@ def gate_report(gates: dict) -> str:
         f"| autoencoder | reconstruction PSNR (dB), {autoencoder['scenes']} gate scene(s) | {_fmt(autoencoder['psnr_db'])} | {autoencoder['gate_db']:.0f} | {'yes' if autoencoder['passed'] else 'no'} |",
         f"| vehicle detector | AP50, held-out corpus scenes | {_fmt(detector['ap50'], 3)} | {detector['gate']} | {'yes' if detector['passed'] else 'no'} |",
         f"| lane segmenter | IoU vs lane markings, held-out corpus scenes | {_fmt(lanes['lane_iou'], 3)} | {lanes['gate']} | {'yes' if lanes['passed'] else 'no'} |",
+    ]
+    if detector.get("ap50_per_scene"):
+        lines += ["", "Detector AP50 per held-out scene: " + ", ".join(f"{scene} {_fmt(ap, 3)}" for scene, ap in detector["ap50_per_scene"].items()) + "."]
+    lines += [
         "",
         "## Added to the paper's recipe",
         "",
