@@ -5,8 +5,8 @@
 Re-measures, with the same code as the workflow's ``foundation_gates`` rule, every gate of a weight
 set on the gate scenes the foundation workflow made (their Street Gaussians renders and pairs
 under ``--foundation-results``): each DriveRestorer's PSNR gain and flicker on shift@3, shift@6
-and original-trajectory clips, the autoencoder's PSNR; the evaluation models' gates are those
-``train-eval-models`` measured (read from the manifest). Nothing is asserted: the table says which
+and original-trajectory clips, the autoencoder's PSNR; the evaluation models' gates are those the
+workflow measured on the same gate scenes (read from the manifest). Nothing is asserted: the table says which
 gates pass. Runs in a few minutes on one CPU core at the compact size.
 """
 
@@ -57,7 +57,7 @@ def main() -> int:
         measured = read_manifest(folder)["files"][name]["gates"]
         value = measured.get("ap50", measured.get("lane_iou"))
         print(f"{name[:-3]} {'AP50' if 'ap50' in measured else 'lane IoU'} {value if value is None else f'{value:.3f}'} "
-              f"(gate {measured['gate']}, held-out corpus scenes): {'pass' if measured['passed'] else 'FAIL'}")
+              f"(gate {measured['gate']}, gate scenes): {'pass' if measured['passed'] else 'FAIL'}")
     return 0
 
 

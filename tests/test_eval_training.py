@@ -51,6 +51,14 @@ def test_train_eval_models_command_writes_models_and_gates(corpus, tmp_path):
         assert (loaded.module.config.input_width, loaded.module.config.input_height) == (96, 64)
     assert inference.load_model(out / "vehicle_detector.pt", "vehicle_detector").module.config.upsample == 2
     assert not list(out.glob("*.resume.pt"))  # resume files go once their model is written
+    # The foundation gates score the models on gate scenes the same way: given the held-out
+    # scene as the gate scene, they reproduce train-eval-models' numbers.
+    from recondreamer.foundation.gates import eval_model_gates
+
+    on_scene = eval_model_gates(out / "metrics.json", out / "vehicle_detector.pt", out / "lane_segmenter.pt", [corpus / "c12"])
+    assert on_scene["vehicle_detector"]["scenes"] == metrics["corpus"]["heldout_scenes"]
+    assert on_scene["vehicle_detector"]["ap50"] == on_scene["vehicle_detector"]["heldout_corpus"]["ap50"] == metrics["gates"]["vehicle_detector"]["ap50"]
+    assert on_scene["lane_segmenter"]["lane_iou"] == metrics["gates"]["lane_segmenter"]["lane_iou"]
     for bad in (["--batch-size", "0"], ["--detector-upsample", "0"]):
         assert main(["train-eval-models", "--corpus", str(corpus), "--out", str(tmp_path / "x"), *bad]) == 1
 

@@ -64,8 +64,9 @@ GATES = {
                                            "render_flicker": 6.0, "restored_flicker": 5.0}, "gate_db": 2.0, "passed": True}},
     "autoencoder": {"psnr_db": 31.0, "gate_db": 30.0, "passed": True, "scenes": 1},
     "eval_models": {
-        "vehicle_detector": {"ap50": 0.91, "ap50_per_scene": {"corpus-003": 0.91}, "gate": 0.9, "passed": True, "heldout_scenes": ["corpus-003"]},
-        "lane_segmenter": {"lane_iou": 0.8, "gate": 0.7, "passed": True, "heldout_scenes": ["corpus-003"]},
+        "vehicle_detector": {"ap50": 0.91, "ap50_per_scene": {"gate-000": 0.91}, "gate": 0.9, "passed": True, "scenes": ["gate-000"],
+                             "heldout_corpus": {"ap50": 0.88, "ap50_per_scene": {"corpus-003": 0.88}, "scenes": ["corpus-003"]}},
+        "lane_segmenter": {"lane_iou": 0.8, "gate": 0.7, "passed": True, "scenes": ["gate-000"], "heldout_corpus": {"lane_iou": 0.82, "scenes": ["corpus-003"]}},
     },
     "recipe": ["residual target"],
 }
@@ -138,7 +139,9 @@ class TestPublish:
         assert manifest["code_version"]
         report = (weight_set / "GATES.md").read_text()
         assert "| dd2_mask | shift@3 | 1 | 20.00 | 22.50 | +2.50 |" in report and "- residual target" in report
-        assert "Detector AP50 per held-out scene: corpus-003 0.910." in report
+        assert "| vehicle detector | AP50, 1 gate scene(s) | 0.910 | 0.9 | yes |" in report
+        assert "| vehicle detector (beside the gate) | AP50, held-out corpus scenes | 0.880 | | |" in report
+        assert "Detector AP50 per scene: gate-000 0.910, corpus-003 0.880." in report
 
     def test_republishing_rewrites_only_the_files_that_changed(self, weight_set, trained_files, tmp_path):
         for name in trained_files:

@@ -38,7 +38,7 @@ def test_quick_foundation_publishes_a_verified_weight_set(quick_foundation):
     for row in ("| dd2_mask | shift@3 |", "| dd2_mask | shift@6 |", "| dd2_mask | original |", "| sd | shift@6 |", "| autoencoder |", "| vehicle detector |"):
         assert row in report, row
     assert "- cycle pairs:" in report  # the recipe's addition, named
-    assert "Detector AP50 per held-out scene: corpus-" in report
+    assert "| vehicle detector | AP50, 1 gate scene(s) |" in report and "Detector AP50 per scene: gate-000 " in report
 
 
 @pytest.mark.slow

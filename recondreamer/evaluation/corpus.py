@@ -145,6 +145,15 @@ class CorpusSplit:
     height: int
 
 
+def labelled_samples(scene, frame_stride: int, heldout: bool, min_lidar_points: int = DEFAULT_MIN_LIDAR_POINTS) -> list[FrameSample]:
+    """Every ``frame_stride``-th frame of every trajectory of ``scene`` that has labels (the
+    original and the true novel views); for held-out use offset by one frame where possible, so
+    that the frame indices differ from training ones too."""
+    trajectories = ["original", *[n for n in scene.novel_trajectories if {"semantics", "instances"} <= set(scene.novel_channels(n))]]
+    start = min(1, scene.num_frames - 1) if heldout else 0
+    return scene_samples(scene, trajectories, list(range(start, scene.num_frames, frame_stride)), min_lidar_points)
+
+
 def load_corpus(
     corpus: str | Path,
     frame_stride: int = 2,
@@ -178,11 +187,8 @@ def load_corpus(
             )
         if "semantics" not in scene.channels or "instances" not in scene.channels:
             raise RecondreamerError(f"{path}: corpus scenes need semantics and instances channels (synthetic scenes have them)")
-        trajectories = ["original", *[n for n in scene.novel_trajectories if {"semantics", "instances"} <= set(scene.novel_channels(n))]]
         heldout = index >= len(paths) - holdout_scenes
-        start = min(1, scene.num_frames - 1) if heldout else 0
-        frames = list(range(start, scene.num_frames, frame_stride))
-        samples = scene_samples(scene, trajectories, frames, min_lidar_points)
+        samples = labelled_samples(scene, frame_stride, heldout, min_lidar_points)
         (split.heldout if heldout else split.train).extend(samples)
         (split.heldout_scenes if heldout else split.train_scenes).append(scene.scene_id)
         log.info("corpus scene %d/%d %s: %d frames (%s)", index + 1, len(paths), scene.scene_id, len(samples), "held out" if heldout else "train")

@@ -50,7 +50,6 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
         "frame_stride": config.frame_stride,
         "min_lidar_points": config.min_lidar_points,
     }
-    heldout_images = np.stack([s.image for s in split.heldout])  # (N,H,W,3)
     torch.manual_seed(config.seed)
     jobs = (
         ("vehicle_detector", config.detector, detector_loss, config.detector_steps, True),
@@ -72,7 +71,7 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
             inference.save_model(path, kind, model, {"run": training, **provenance})
             finish_job(path)
         metrics["models"][kind] = {"path": str(path), "sha256": inference.file_sha256(path), "training": training}
-        metrics["gates"][kind] = _gate(kind, model, split, heldout_images)
+        metrics["gates"][kind] = gate_on_samples(kind, model, split.heldout)
         log.info("%s gate: %s", kind, metrics["gates"][kind])
     metrics["all_gates_passed"] = all(g.get("passed", True) for g in metrics["gates"].values())
     metrics["config"] = {k: v for k, v in asdict(config).items() if k not in ("detector", "lanes", "features")}
@@ -80,17 +79,20 @@ def train_eval_models(corpus: str | Path, out: str | Path, config: EvalModelsCon
     return metrics
 
 
-def _gate(kind: str, model: torch.nn.Module, split, images: np.ndarray) -> dict:
-    heldout = split.heldout
+def gate_on_samples(kind: str, model: torch.nn.Module, heldout: list) -> dict:
+    """The gate of one evaluation model (``kind``) on labelled frames it did not train on
+    (``corpus.FrameSample``s of one frame size): detector AP50 (also per scene), lane IoU, or the
+    feature network's semantic accuracy."""
+    images = np.stack([s.image for s in heldout])  # (N,H,W,3)
+    height, width = images.shape[1:3]
     if kind == "vehicle_detector":
         detections = inference.detect_vehicles(model, images, gates.AP_SCORE_FLOOR)
         return gates.detector_gate(
-            detections, [s.eval_boxes for s in heldout], [s.ignore_boxes for s in heldout], split.width, split.height, DETECTION_SCORE_THRESHOLD,
+            detections, [s.eval_boxes for s in heldout], [s.ignore_boxes for s in heldout], width, height, DETECTION_SCORE_THRESHOLD,
             scene_ids=[s.scene_id for s in heldout],
         )
     if kind == "lane_segmenter":
         return gates.lane_gate(list(inference.segment_lanes(model, images)), [s.lane_mask for s in heldout], [s.map_lane_mask for s in heldout])
-    height, width = images.shape[1:3]
     predictions = []
     with torch.no_grad():
         for i in range(0, len(images), 16):

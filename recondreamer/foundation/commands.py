@@ -14,14 +14,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "foundation-gates",
         help="the foundation models' gates on gate scenes no model saw (JSON and GATES.md)",
         description="Restore the gate scenes' renders with every DriveRestorer (novel trajectories: the final Street "
-        "Gaussians model; original: under-trained snapshots), measure the autoencoder on the gate scenes' frames, read the "
-        "evaluation models' gates, and write OUT (JSON) and OUT's sibling GATES.md.",
+        "Gaussians model; original: under-trained snapshots), measure the autoencoder on the gate scenes' frames and the "
+        "evaluation models on their labelled frames, and write OUT (JSON) and OUT's sibling GATES.md.",
     )
     p.add_argument("--restorer", nargs="+", required=True, metavar="ARCH=FILE", help="DriveRestorer checkpoints")
     p.add_argument("--pairs", nargs="+", required=True, type=Path, help="gate scenes' pairs directories (make-pairs --trajectories original shift@3 shift@6)")
     p.add_argument("--autoencoder", required=True, type=Path, help="autoencoder checkpoint")
     p.add_argument("--gate-scenes", nargs="+", required=True, type=Path, help="gate scene directories")
     p.add_argument("--eval-metrics", required=True, type=Path, help="metrics.json written by train-eval-models")
+    p.add_argument("--detector", required=True, type=Path, help="vehicle detector written by train-eval-models")
+    p.add_argument("--lane-model", required=True, type=Path, help="lane segmenter written by train-eval-models")
     p.add_argument("--gate-seeds", nargs="+", required=True, type=int, help="world seeds of the gate scenes (for the report)")
     p.add_argument("--corpus-seeds", nargs=2, required=True, type=int, metavar=("FIRST", "LAST"), help="first and last corpus seed")
     p.add_argument("--out", required=True, type=Path, help="gates JSON to write (GATES.md is written beside it)")
@@ -78,7 +80,7 @@ def run_foundation_gates(args: argparse.Namespace) -> int:
         "corpus_seeds": args.corpus_seeds,
         "restorers": restorers,
         "autoencoder": foundation_gates.autoencoder_gate(args.autoencoder, args.gate_scenes),
-        "eval_models": foundation_gates.eval_model_gates(args.eval_metrics),
+        "eval_models": foundation_gates.eval_model_gates(args.eval_metrics, args.detector, args.lane_model, args.gate_scenes),
         "recipe": recipe or ["none"],
     }
     write_json_atomic(args.out, result)

@@ -78,6 +78,8 @@ rule foundation_gates:
         restorers=[results("models", f"restorer_{arch}.pt") for arch in FOUNDATION_RESTORERS],
         autoencoder=results("models", "autoencoder.pt"),
         eval_metrics=results("eval_models", "metrics.json"),
+        detector=results("eval_models", "vehicle_detector.pt"),
+        lanes=results("eval_models", "lane_segmenter.pt"),
         pairs=[results("gate_pairs", s) for s in GATE_SCENES],
         scenes=[results("gate_scenes", s) for s in GATE_SCENES],
     output:
@@ -96,7 +98,7 @@ rule foundation_gates:
         benchmark_file("foundation_gates", "all")
     shell:
         "recondreamer foundation-gates --restorer {params.restorers} --pairs {input.pairs} --autoencoder {input.autoencoder} "
-        "--gate-scenes {input.scenes} --eval-metrics {input.eval_metrics} --gate-seeds {params.gate_seeds} "
+        "--gate-scenes {input.scenes} --eval-metrics {input.eval_metrics} --detector {input.detector} --lane-model {input.lanes} --gate-seeds {params.gate_seeds} "
         "--corpus-seeds {params.corpus_seeds} --out {output.gates} --threads {threads} > {log} 2>&1"
 
 
