@@ -171,7 +171,7 @@ def validity_table(results: Path, config_path: Path | None) -> str:
         pooled = frechet.pooled_fid_from_features(renders, reference)
         kid = frechet.kid_from_features(renders, reference)
         lines.append(f"| FID pooled ({pooled['fid_dim']} dims) / KID x1000 pooled, {run_label} | {pooled['fid']:.3f} | {1000 * kid['kid']:.2f} +- {1000 * kid['kid_std']:.2f} | |")
-    lines += ["", "The mean of per-segment FIDs (mean over segments, 24-40 frames each against as many dimensions) is the protocol the tables no longer use; the pooled values are what they show."]
+    lines += ["", "The mean of per-segment FIDs (mean over segments, 24-40 frames each against as many dimensions) is listed above only to compare the two protocols; the tables show the pooled values."]
     return "\n".join(lines)
 
 
