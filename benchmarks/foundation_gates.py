@@ -5,8 +5,8 @@
 Re-measures, with the same code as the workflow's ``foundation_gates`` rule, every gate of a weight
 set on the gate scenes the foundation workflow made (their Street Gaussians renders and pairs
 under ``--foundation-results``): each DriveRestorer's PSNR gain and flicker on shift@3, shift@6
-and original-trajectory clips, the autoencoder's PSNR; the evaluation models' gates are those the
-workflow measured on the same gate scenes (read from the manifest). Nothing is asserted: the table says which
+and original-trajectory clips, the autoencoder's PSNR, the detector's AP50 and the lane
+segmenter's IoU on the gate scenes' labelled frames. Nothing is asserted: the table says which
 gates pass. Runs in a few minutes on one CPU core at the compact size.
 """
 
@@ -17,11 +17,7 @@ import logging
 from pathlib import Path
 
 from recondreamer.foundation import gates
-from recondreamer.foundation.weights import (
-    read_manifest,
-    shipped_weights_dir,
-    verify_weight_set,
-)
+from recondreamer.foundation.weights import shipped_weights_dir, verify_weight_set
 from recondreamer.generative.data import find_pairs_files
 
 
@@ -53,11 +49,13 @@ def main() -> int:
                       + ("" if entry["arch"] != gates.GATED_RESTORER else ("pass" if result["passed"] else "FAIL")))
     autoencoder = gates.autoencoder_gate(folder / "autoencoder.pt", scenes)
     print(f"autoencoder PSNR {autoencoder['psnr_db']:.2f} dB (gate {autoencoder['gate_db']:.0f}): {'pass' if autoencoder['passed'] else 'FAIL'}")
-    for name in ("vehicle_detector.pt", "lane_segmenter.pt"):
-        measured = read_manifest(folder)["files"][name]["gates"]
-        value = measured.get("ap50", measured.get("lane_iou"))
-        print(f"{name[:-3]} {'AP50' if 'ap50' in measured else 'lane IoU'} {value if value is None else f'{value:.3f}'} "
-              f"(gate {measured['gate']}, gate scenes): {'pass' if measured['passed'] else 'FAIL'}")
+    sampling = manifest["files"]["vehicle_detector.pt"]["training"]  # how train-eval-models sampled its held-out frames
+    measured = gates.eval_models_on_scenes(folder / "vehicle_detector.pt", folder / "lane_segmenter.pt", scenes, sampling["frame_stride"], sampling["min_lidar_points"])
+    for kind, key, label in (("vehicle_detector", "ap50", "AP50"), ("lane_segmenter", "lane_iou", "lane IoU")):
+        row = measured[kind]
+        per_scene = ", ".join(f"{scene} {ap:.3f}" for scene, ap in row.get("ap50_per_scene", {}).items())
+        print(f"{kind} {label} {row[key]:.3f} (gate {row['gate']}, {len(row['scenes'])} gate scenes{'; ' + per_scene if per_scene else ''}): "
+              f"{'pass' if row['passed'] else 'FAIL'}")
     return 0
 
 

@@ -113,50 +113,44 @@ def autoencoder_gate(path: str | Path, scene_dirs: list[Path]) -> dict:
     return {"psnr_db": value, "gate_db": AUTOENCODER_PSNR_GATE_DB, "passed": value >= AUTOENCODER_PSNR_GATE_DB, "scenes": len(scene_dirs)}
 
 
-def eval_model_gates(metrics_file: str | Path, detector: str | Path, lane_segmenter: str | Path, scene_dirs: list[Path]) -> dict:
-    """The detector's and lane segmenter's gates on the gate scenes' labelled frames (the original
-    and true novel views, sampled as ``train-eval-models`` samples its held-out scenes, with its
-    frame stride and LiDAR-point threshold), and beside them what ``train-eval-models`` measured
-    on its held-out corpus scenes (``metrics_file``), which the world models and restorers saw."""
+def eval_models_on_scenes(detector: str | Path, lane_segmenter: str | Path, scene_dirs: list[Path], frame_stride: int, min_lidar_points: int) -> dict:
+    """The detector's AP50 (also per scene) and the lane segmenter's IoU on the labelled frames of
+    ``scene_dirs`` (the recorded and true novel views, every ``frame_stride``-th frame, sampled as
+    ``train-eval-models`` samples its held-out scenes), with their gates."""
     from recondreamer.evaluation import inference
     from recondreamer.evaluation.corpus import labelled_samples
     from recondreamer.evaluation.train_eval_models import gate_on_samples
     from recondreamer.scene import load_scene
 
+    samples = [sample for scene_dir in scene_dirs for sample in labelled_samples(load_scene(scene_dir), frame_stride, True, min_lidar_points)]
+    scenes = list(dict.fromkeys(sample.scene_id for sample in samples))
+    detector_gate = gate_on_samples("vehicle_detector", inference.load_model(detector, "vehicle_detector").module, samples)
+    lane_gate = gate_on_samples("lane_segmenter", inference.load_model(lane_segmenter, "lane_segmenter").module, samples)
+    return {
+        "vehicle_detector": {"ap50": detector_gate["ap50"], "ap50_per_scene": detector_gate["ap50_per_scene"], "gate": DETECTOR_AP50_GATE,
+                             "passed": bool(detector_gate["passed"]), "scenes": scenes},
+        "lane_segmenter": {"lane_iou": lane_gate["lane_iou"], "gate": LANE_IOU_GATE, "passed": bool(lane_gate["passed"]), "scenes": scenes},
+    }
+
+
+def eval_model_gates(metrics_file: str | Path, detector: str | Path, lane_segmenter: str | Path, scene_dirs: list[Path]) -> dict:
+    """:func:`eval_models_on_scenes` on the gate scenes, with ``train-eval-models``' frame stride and
+    LiDAR-point threshold, and beside it what ``train-eval-models`` measured on its held-out corpus
+    scenes (``metrics_file``), which the world models and restorers saw."""
     metrics = json.loads(Path(metrics_file).read_text())
     settings, corpus = metrics.get("config", {}), metrics.get("corpus", {})
     if "frame_stride" not in settings or "min_lidar_points" not in corpus:
         raise RecondreamerError(f"{metrics_file}: not a train-eval-models metrics.json (no config.frame_stride or corpus.min_lidar_points)")
-    samples = [
-        sample
-        for scene_dir in scene_dirs
-        for sample in labelled_samples(load_scene(scene_dir), settings["frame_stride"], heldout=True, min_lidar_points=corpus["min_lidar_points"])
-    ]
-    scenes = list(dict.fromkeys(sample.scene_id for sample in samples))
-    heldout = corpus.get("heldout_scenes")
+    result = eval_models_on_scenes(detector, lane_segmenter, scene_dirs, settings["frame_stride"], corpus["min_lidar_points"])
     measured = metrics.get("gates", {})
-    on_gate_scenes = {
-        "vehicle_detector": gate_on_samples("vehicle_detector", inference.load_model(detector, "vehicle_detector").module, samples),
-        "lane_segmenter": gate_on_samples("lane_segmenter", inference.load_model(lane_segmenter, "lane_segmenter").module, samples),
-    }
-    result = {}
-    for kind, key, gate in (("vehicle_detector", "ap50", DETECTOR_AP50_GATE), ("lane_segmenter", "lane_iou", LANE_IOU_GATE)):
-        value = on_gate_scenes[kind][key]
-        per_scene = {"ap50_per_scene": on_gate_scenes[kind]["ap50_per_scene"]} if kind == "vehicle_detector" else {}
+    for kind, key in (("vehicle_detector", "ap50"), ("lane_segmenter", "lane_iou")):
         before = measured.get(kind, {})
-        result[kind] = {
-            key: value,
-            **per_scene,
-            "gate": gate,
-            "passed": bool(value is not None and value >= gate),
-            "scenes": scenes,
-            "heldout_corpus": {
-                key: before.get(key),
-                **({"ap50_per_scene": before["ap50_per_scene"]} if "ap50_per_scene" in before else {}),
-                "scenes": heldout,
-            },
+        result[kind]["heldout_corpus"] = {
+            key: before.get(key),
+            **({"ap50_per_scene": before["ap50_per_scene"]} if "ap50_per_scene" in before else {}),
+            "scenes": corpus.get("heldout_scenes"),
         }
-        LOG.info("%s on %d gate scene(s): %s %.3f (held-out corpus scenes: %s)", kind, len(scenes), key, value, before.get(key))
+        LOG.info("%s on %d gate scene(s): %s %.3f (held-out corpus scenes: %s)", kind, len(result[kind]["scenes"]), key, result[kind][key], before.get(key))
     return result
 
 
