@@ -203,8 +203,10 @@ def gate_report(gates: dict) -> str:
         "",
         "The evaluation models are gated, as every model here, on the gate scenes (their recorded and true novel views);",
         "`train-eval-models` held its corpus's last scenes out of their training, but the world models and restorers saw those.",
-        "Detector AP50 per scene: " + ", ".join(f"{scene} {_fmt(ap, 3)}" for scene, ap in {**detector.get("ap50_per_scene", {}), **detector["heldout_corpus"].get("ap50_per_scene", {})}.items()) + ".",
     ]
+    per_scene = {**detector.get("ap50_per_scene", {}), **detector["heldout_corpus"].get("ap50_per_scene", {})}
+    if per_scene:
+        lines.append("Detector AP50 per scene: " + ", ".join(f"{scene} {_fmt(ap, 3)}" for scene, ap in per_scene.items()) + ".")
     lines += [
         "",
         "## Added to the paper's recipe",
