@@ -154,12 +154,15 @@ class TestPublish:
         assert manifest["files"]["vehicle_detector.pt"]["sha256"] == sha256_file(changed)
         verify_weight_set(weight_set)  # raises on any mismatch
 
-    def test_unknown_name_or_missing_source_fails_before_writing(self, tmp_path, trained_files):
+    def test_unknown_name_missing_source_or_old_gates_fail_before_writing(self, tmp_path, trained_files):
         with pytest.raises(WeightsError, match="restorer_xyz.pt: not a file of a weight set"):
             publish_weight_set({"restorer_xyz.pt": trained_files["autoencoder.pt"]}, GATES, "quick", tmp_path / "a")
         with pytest.raises(WeightsError, match="nothing.pt: file not found"):
             publish_weight_set({"autoencoder.pt": tmp_path / "nothing.pt"}, GATES, "quick", tmp_path / "b")
-        assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+        older = {**GATES, "eval_models": {kind: {k: v for k, v in gate.items() if k != "heldout_corpus"} for kind, gate in GATES["eval_models"].items()}}
+        with pytest.raises(WeightsError, match=r"lacks eval_models.vehicle_detector.heldout_corpus, eval_models.lane_segmenter.heldout_corpus: .*older foundation-gates"):
+            publish_weight_set({"autoencoder.pt": trained_files["autoencoder.pt"]}, older, "quick", tmp_path / "c")
+        assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
 
 
 class TestVerify:

@@ -103,7 +103,7 @@ def run_publish(args: argparse.Namespace) -> int:
     import json
 
     from recondreamer.errors import RecondreamerError
-    from recondreamer.foundation.weights import BY_NAME, publish_weight_set
+    from recondreamer.foundation.weights import BY_NAME, WeightsError, publish_weight_set
 
     files = {}
     for item in args.files:
@@ -111,7 +111,10 @@ def run_publish(args: argparse.Namespace) -> int:
         if not sep or name not in BY_NAME:
             raise RecondreamerError(f"{item!r}: expected NAME=FILE with NAME one of {', '.join(BY_NAME)}")
         files[name] = Path(path)
-    manifest = publish_weight_set(files, json.loads(args.gates.read_text()), args.corpus_preset, args.out)
+    try:
+        manifest = publish_weight_set(files, json.loads(args.gates.read_text()), args.corpus_preset, args.out)
+    except WeightsError as error:
+        raise WeightsError(f"{args.gates}: {error}") from error
     total = sum(entry["bytes"] for entry in manifest["files"].values())
     log.info("wrote %s: %d files, %.1f MiB", args.out / "manifest.json", len(files), total / 2**20)
     return 0

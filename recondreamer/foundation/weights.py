@@ -205,6 +205,11 @@ def publish_weight_set(files: dict[str, Path], gates: dict, corpus_preset: str, 
     from recondreamer.provenance import code_version
 
     out = Path(out)
+    evaluation = gates.get("eval_models", {})
+    missing = [f"eval_models.{kind}.{key}" for kind in ("vehicle_detector", "lane_segmenter") for key in ("scenes", "heldout_corpus")
+               if key not in evaluation.get(kind, {})]
+    if missing:
+        raise WeightsError(f"the gates document lacks {', '.join(missing)}: it was written by an older foundation-gates; run that rule again")
     for name, source in files.items():
         if name not in BY_NAME:
             raise WeightsError(f"{name}: not a file of a weight set (known: {', '.join(BY_NAME)})")
