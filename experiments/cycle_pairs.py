@@ -23,6 +23,11 @@ on the gate scenes:
           beside B's render (what B was trained on). The foundation's pairs have none.
   deep:   the cycle arm with a restorer UNet of two residual blocks per level (``--blocks-per-level 2``;
           the second starts as the identity): does capacity limit what the pairs teach?
+  right:  the cycle arm with run A rendering shift@-3 and shift@-6 (to the right) instead: run B's
+          recorded trajectory then lies to the LEFT of the views it trained on, as the gate's
+          shift@3 and shift@6 lie to the left of the recorded views (with left shifts, B's
+          render is worst at the right image edge, the gate's at the left edge).
+  both:   the cycle arm with the cycle pairs of both sides.
 Every step skips what exists, so a stopped run continues; two jobs run side by side.
 """
 
@@ -49,9 +54,16 @@ from early_snapshot_pairs import (  # the sibling experiments' steps, shared
     train_dd2_mask,
 )
 
-CYCLE_SHIFTS = ("shift@3", "shift@6")
+LEFT_SHIFTS, RIGHT_SHIFTS = ("shift@3", "shift@6"), ("shift@-3", "shift@-6")
 CYCLE_ITERATIONS = 700  # run B's, as run A's (its snapshot: half of them)
-ARMS = {"cycle": (), "view": ("--view-condition",), "deep": ("--blocks-per-level", "2")}  # restorer name -> extra train-restorer flags
+ARMS = {  # restorer name -> (run A's cycle trajectories, extra train-restorer flags)
+    "cycle": (LEFT_SHIFTS, ()),
+    "view": (LEFT_SHIFTS, ("--view-condition",)),
+    "deep": (LEFT_SHIFTS, ("--blocks-per-level", "2")),
+    "right": (RIGHT_SHIFTS, ()),
+    "both": (LEFT_SHIFTS + RIGHT_SHIFTS, ()),
+}
+DEFAULT_ARMS = ("cycle", "view", "deep")
 
 
 def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Path) -> Path:
@@ -73,7 +85,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable; experiments/novel_view_pairs.py's)")
     parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
     parser.add_argument("--steps", type=int, default=FOUNDATION_RESTORER_STEPS, help="restorer training steps (default 3000, as the foundation)")
-    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(ARMS), help="which restorers to train (default all)")
+    parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(DEFAULT_ARMS), help=f"which restorers to train (default {' '.join(DEFAULT_ARMS)})")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     out = args.out
@@ -94,12 +106,18 @@ def main() -> int:
         gate_scenes = list(pool.map(lambda s: synth(s[0], s[1], out / "gate_scenes" / s[1], True), gates))
         list(pool.map(lambda scene: street_run_pairs(scene, out / "runs" / scene.name, out / "pairs" / scene.name, ("original",), out / "logs"), scenes))
         list(pool.map(lambda scene: gate_pairs(scene, out), gate_scenes))
-        list(pool.map(cycle_job, [(scene, shift) for scene in scenes for shift in CYCLE_SHIFTS]))
+        shifts = sorted({shift for arm in args.arms for shift in ARMS[arm][0]})
+        list(pool.map(cycle_job, [(scene, shift) for scene in scenes for shift in shifts]))
         recorded = [out / "pairs" / scene.name / f"{scene.name}__{scene.name}.npz" for scene in scenes]
+
+        def arm_pairs(arm: str) -> list[Path]:
+            return [*recorded, *(out / "pairs_cycle" / f"{scene.name}__{shift}.npz" for scene in scenes for shift in ARMS[arm][0])]
+
         restorers = dict(zip(args.arms, pool.map(
-            lambda arm: train_dd2_mask([*recorded, out / "pairs_cycle"], restorer_path(out, arm, args.steps), args.steps, out, ARMS[arm]), args.arms)))
+            lambda arm: train_dd2_mask(arm_pairs(arm), restorer_path(out, arm, args.steps), args.steps, out, ARMS[arm][1]), args.arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
-    sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "deep": "same, 2 blocks per level", "shipped": "foundation (original)"}
+    sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "deep": "same, 2 blocks per level",
+               "right": "original + cycle -3, -6", "both": "original + cycle 3, 6, -3, -6", "shipped": "foundation"}
     print_gates(restorers, sources, out)
     return 0
 

@@ -29,10 +29,10 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from cycle_pairs import CYCLE_SHIFTS  # the sibling experiments' steps, shared
+from cycle_pairs import LEFT_SHIFTS  # the sibling experiments' steps, shared
 from early_snapshot_pairs import GATE_SEEDS, SHIPPED, run
 
-TRAJECTORIES = (*CYCLE_SHIFTS, "original")
+TRAJECTORIES = (*LEFT_SHIFTS, "original")
 CYCLE_SCRIPT = Path(__file__).resolve().parent / "cycle_pairs.py"  # its --_cycle entry makes one scene's cycle pairs
 
 
@@ -87,7 +87,7 @@ def main() -> int:
                             str(out / "adapt_cycle_runs" / gate / shift), str(out / "adapt_pairs" / gate)], check=True, stdout=log, stderr=subprocess.STDOUT)
 
     with ThreadPoolExecutor(2) as pool:
-        list(pool.map(cycle_job, [(gate, shift) for gate in gates for shift in CYCLE_SHIFTS]))
+        list(pool.map(cycle_job, [(gate, shift) for gate in gates for shift in LEFT_SHIFTS]))
         adapted = list(pool.map(lambda gate: adapt(args.restorer, out / "adapt_pairs" / gate, out / "adapted" / f"{tag}_{gate}.pt", args.steps,
                                                    args.ema_decay, out / "logs"), gates))
         before = list(pool.map(lambda gate: score(args.restorer, out / "gate_pairs" / gate), gates))
