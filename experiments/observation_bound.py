@@ -83,8 +83,9 @@ def splat_points(scene, points: np.ndarray, colours: np.ndarray, cam_to_world: n
     return image, covered
 
 
-def observed_pixels(scene, trajectory: str, frame: int, recorded: list[int]) -> np.ndarray:  # (H,W) bool
-    """Pixels of the true novel view (``trajectory`` at ``frame``) whose surface some ``recorded`` frame saw."""
+def seen_by_each_frame(scene, trajectory: str, frame: int, recorded_depths: np.ndarray) -> np.ndarray:  # (T,H,W) bool
+    """For each recorded frame, the pixels of the true novel view (``trajectory`` at ``frame``) whose
+    surface it saw; ``recorded_depths`` (T,H,W) are the recorded frames' depth maps."""
     from recondreamer.scene.cameras import pixel_indices, project_points, transform_points, world_to_camera
 
     height, width = scene.height, scene.width
@@ -94,20 +95,25 @@ def observed_pixels(scene, trajectory: str, frame: int, recorded: list[int]) -> 
     rays = np.stack([cols, rows, np.ones_like(cols)], -1).reshape(-1, 3) @ np.linalg.inv(scene.K).T  # (HW,3), z = 1
     novel_pose = scene.trajectory(trajectory)[frame]
     surface = transform_points(novel_pose, rays * np.where(sky, 1.0, depth)[:, None])  # (HW,3) world
-    sky_direction = novel_pose[:3, 3] + (rays @ novel_pose[:3, :3].T) * 1e6  # sky: directions, far away
-    points = np.where(sky[:, None], sky_direction, surface)
-    seen = np.zeros(height * width, bool)
-    for other in recorded:
+    sky_offset = (rays @ novel_pose[:3, :3].T) * 1e6  # sky: a direction, placed far from whichever camera looks
+    seen = np.zeros((len(recorded_depths), height * width), bool)
+    for other, recorded_depth_map in enumerate(recorded_depths):
         pose = scene.cam_to_world[other]
-        moved = points if not sky.any() else np.where(sky[:, None], points - novel_pose[:3, 3] + pose[:3, 3], points)  # sky directions from this camera
-        uv, z = project_points(moved, scene.K, world_to_camera(pose))
+        points = np.where(sky[:, None], pose[:3, 3] + sky_offset, surface)
+        uv, z = project_points(points, scene.K, world_to_camera(pose))
         u, v = pixel_indices(uv)
         inside = _in_image(scene, u, v, z)
         recorded_depth = np.zeros(len(z))
-        recorded_depth[inside] = scene.depth(other)[v[inside], u[inside]]
+        recorded_depth[inside] = recorded_depth_map[v[inside], u[inside]]
         same_surface = np.abs(recorded_depth - z) <= 0.05 * z + 0.05
-        seen |= inside & np.where(sky, recorded_depth <= 0, same_surface & (recorded_depth > 0))
-    return seen.reshape(height, width)
+        seen[other] = inside & np.where(sky, recorded_depth <= 0, same_surface & (recorded_depth > 0))
+    return seen.reshape(-1, height, width)
+
+
+def observed_pixels(scene, trajectory: str, frame: int, recorded: list[int]) -> np.ndarray:  # (H,W) bool
+    """Pixels of the true novel view (``trajectory`` at ``frame``) whose surface some ``recorded`` frame saw."""
+    depths = np.stack([scene.depth(other) for other in range(scene.num_frames)])
+    return seen_by_each_frame(scene, trajectory, frame, depths)[recorded].any(0)
 
 
 def measure_clip(scene, pairs_file: Path, trajectory: str) -> dict:
@@ -119,9 +125,12 @@ def measure_clip(scene, pairs_file: Path, trajectory: str) -> dict:
     truth, render = content["gt"], content["degraded"][int(np.argmax(content["stages"]))]
     frames = scene.num_frames
     row = {"render": mean_psnr(render, truth)}
+    depths = np.stack([scene.depth(t) for t in range(frames)])
+    seen = np.stack([seen_by_each_frame(scene, trajectory, t, depths) for t in range(frames)])  # (T novel, T recorded, H, W)
+    distance = np.abs(np.arange(frames)[:, None] - np.arange(frames)[None, :])  # (T,T) frames apart
     for name, window in WINDOWS.items():
-        masks = np.stack([observed_pixels(scene, trajectory, t, [s for s in range(frames) if window is None or abs(s - t) <= window])
-                          for t in range(frames)])  # (T,H,W)
+        within = distance <= (frames if window is None else window)
+        masks = (seen & within[:, :, None, None]).any(1)  # (T,H,W)
         row[f"observed {name}"] = float(masks.mean())
         row[f"bound {name}"] = mean_psnr(np.where(masks[..., None], truth, render), truth)
     pasted, covered = render.copy(), []
