@@ -64,6 +64,13 @@ ARMS = {  # restorer name -> (run A's cycle trajectories, extra train-restorer f
     "both": (LEFT_SHIFTS + RIGHT_SHIFTS, ()),
 }
 DEFAULT_ARMS = ("cycle", "view", "deep")
+DEFAULT_SCENES = 16
+
+
+def arm_name(arm: str, scenes: int) -> str:
+    """An arm's restorer name; a scene count other than the default is part of it, so a folder grown
+    to more scenes trains a new restorer instead of reusing the smaller one."""
+    return arm if scenes == DEFAULT_SCENES else f"{arm}_{scenes}scenes"
 
 
 def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Path) -> Path:
@@ -83,7 +90,7 @@ def cycle_pairs(scene_dir: Path, run_a: Path, shift: str, run_b: Path, pairs: Pa
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", type=Path, required=True, help="working folder (resumable; experiments/novel_view_pairs.py's)")
-    parser.add_argument("--scenes", type=int, default=16, help="corpus scenes for the pairs (default 16, as the foundation)")
+    parser.add_argument("--scenes", type=int, default=DEFAULT_SCENES, help="corpus scenes for the pairs (default 16, as the foundation)")
     parser.add_argument("--steps", type=int, default=FOUNDATION_RESTORER_STEPS, help="restorer training steps (default 3000, as the foundation)")
     parser.add_argument("--arms", nargs="+", choices=list(ARMS), default=list(DEFAULT_ARMS), help=f"which restorers to train (default {' '.join(DEFAULT_ARMS)})")
     args = parser.parse_args()
@@ -114,7 +121,7 @@ def main() -> int:
             return [*recorded, *(out / "pairs_cycle" / f"{scene.name}__{shift}.npz" for scene in scenes for shift in ARMS[arm][0])]
 
         restorers = dict(zip(args.arms, pool.map(
-            lambda arm: train_dd2_mask(arm_pairs(arm), restorer_path(out, arm, args.steps), args.steps, out, ARMS[arm][1]), args.arms)))
+            lambda arm: train_dd2_mask(arm_pairs(arm), restorer_path(out, arm_name(arm, args.scenes), args.steps), args.steps, out, ARMS[arm][1]), args.arms)))
     restorers["shipped"] = SHIPPED / "restorer_dd2_mask.pt"
     sources = {"cycle": "original + cycle 3, 6", "view": "same, + reference views", "deep": "same, 2 blocks per level",
                "right": "original + cycle -3, -6", "both": "original + cycle 3, 6, -3, -6", "shipped": "foundation"}
