@@ -276,8 +276,8 @@ def test_foundation_config_dry_run_builds_every_foundation_model_and_its_gates(t
     assert result.returncode == 0, result.stderr
     expected = {
         "synth_corpus_scene": 120, "synth_gate_scene": 4, "train_gate_recon": 4, "make_gate_pairs": 4,
-        # Street Gaussians runs on all 120 scenes (the cycles' run A), the three other backbones on the 16 pairs scenes.
-        "train_corpus_recon": 120 + 16 * 3, "make_pairs_corpus": 16, "make_cycle_pairs_corpus": 120 * 2,
+        # Street Gaussians runs on all 120 scenes (the cycles' run A, four lateral drives each), the three other backbones on the 16 pairs scenes.
+        "train_corpus_recon": 120 + 16 * 3, "make_pairs_corpus": 16, "make_cycle_pairs_corpus": 120 * 4,
         "train_autoencoder": 1, "pretrain_world_model": 3,
         "train_restorer": 4, "train_eval_models": 1, "foundation_gates": 1, "publish_weights": 1, "all": 1,
     }
