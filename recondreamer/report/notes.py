@@ -114,6 +114,18 @@ def restorer_recipe(payload: dict) -> list[str]:
     return changes
 
 
+def weight_set_name(config, folder: Path) -> str:
+    """How the notes name a run's weight set: a user's folder by its path; the shipped set by the
+    code version that trained it, not by where the package is installed, so that two clones give
+    the same tables to the byte."""
+    if config.get("foundation", {}).get("weights", "shipped") != "shipped":
+        return f"the weight set {folder}"
+    from recondreamer.foundation.weights import read_manifest
+
+    version = str(read_manifest(folder).get("code_version") or "unknown")
+    return f"the shipped weight set (trained by code version {version[:7]})"
+
+
 def run_notes(config: Mapping) -> dict[int, list[str]]:
     """Notes per table number for the run described by a validated workflow config."""
     experiment = config["experiment"]
@@ -179,7 +191,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
     pair_sources = []
     weights = weight_set_dir(config)
     if weights is not None:
-        pair_sources.append(f"the corpus scene reconstructions of the weight set {weights}")
+        pair_sources.append(f"the corpus scene reconstructions of {weight_set_name(config, weights)}")
     elif config["restorer"]["pair_segment_backbones"]:
         pair_sources.append(
             f"the evaluation segments' baseline runs ({', '.join(BACKBONE_LABELS.get(b, b) for b in config['restorer']['pair_segment_backbones'])}) "
@@ -206,7 +218,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         for arch, changes in recipes.items():
             recipe_lines.append(f"Changes to the paper's recipe ({RESTORER_LABELS.get(arch, arch)}): " + ("; ".join(changes) if changes else "none") + ".")
 
-    origin = "trained in this run" if weights is None else f"trained once on the synthetic corpus, from the weight set {weights} (gates in its GATES.md)"
+    origin = "trained in this run" if weights is None else f"trained once on the synthetic corpus, from {weight_set_name(config, weights)} (gates in its GATES.md)"
     common = [f"Stand-ins (small models {origin}, named with the paper's models they replace): " + " ".join(lines_models), *recipe_lines, *budgets]
     methods = config.get("methods", {})
     stride_lines = []
