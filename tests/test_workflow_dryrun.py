@@ -1,6 +1,7 @@
 """The Snakemake workflow at parse time: dry runs of the shipped configs with the expected job
 counts per rule, bad configs failing with the schema's message, and the linter."""
 
+import json
 import re
 import shutil
 import subprocess
@@ -319,6 +320,34 @@ def test_a_missing_weight_set_stops_the_run_at_parse_time(tmp_path):
     result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "set.yaml")
     assert result.returncode != 0
     assert "absent-weights/manifest.json: weight-set manifest not found (the folder does not exist)" in result.stdout + result.stderr
+
+
+def test_a_jobs_own_parse_checks_the_hashes_and_the_main_parse_also_loads(tmp_path):
+    """A job's parse (``--mode remote``: the batch and srun steps of every SLURM job) skips loading
+    the models but still refuses an altered file; the main process's parse refuses it too."""
+    from recondreamer.foundation.weights import sha256_file, shipped_weights_dir
+
+    root = workflow_copy(tmp_path)
+    weights = shutil.copytree(shipped_weights_dir(), tmp_path / "my-weights")
+    (root / "set.yaml").write_text(yaml.safe_dump({"foundation": {"weights": str(weights)}}))
+    for mode in ([], ["--mode", "remote"]):
+        assert snakemake(root, "-n", "--quiet", "rules", "--configfile", "set.yaml", *mode).returncode == 0, mode
+    altered = weights / "restorer_dd2_mask.pt"
+    data = bytearray(altered.read_bytes())
+    data[-1] ^= 0xFF
+    altered.write_bytes(bytes(data))
+    for mode in ([], ["--mode", "remote"]):
+        result = snakemake(root, "-n", "--quiet", "rules", "--configfile", "set.yaml", *mode)
+        assert result.returncode != 0, mode
+        assert f"{altered}: altered: sha256" in result.stdout + result.stderr, mode
+    # Bytes no code can load, listed with their own hash: only the main process, which loads the models, refuses them.
+    altered.write_bytes(b"not a checkpoint")
+    manifest = json.loads((weights / "manifest.json").read_text())
+    manifest["files"][altered.name]["sha256"] = sha256_file(altered)
+    (weights / "manifest.json").write_text(json.dumps(manifest))
+    main = snakemake(root, "-n", "--quiet", "rules", "--configfile", "set.yaml")
+    assert main.returncode != 0 and f"{altered}: an architecture this code cannot load" in main.stdout + main.stderr
+    assert snakemake(root, "-n", "--quiet", "rules", "--configfile", "set.yaml", "--mode", "remote").returncode == 0
 
 
 def test_restorer_timestep_power_pixel_loss_weight_ema_decay_and_depth_reach_every_fine_tuning_and_only_when_set(tmp_path):
