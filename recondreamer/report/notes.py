@@ -190,8 +190,9 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
     iterations = recon_iterations(config)
     pair_sources = []
     weights = weight_set_dir(config)
+    weights_name = None if weights is None else weight_set_name(config, weights)  # reads the manifest once
     if weights is not None:
-        pair_sources.append(f"the corpus scene reconstructions of {weight_set_name(config, weights)}")
+        pair_sources.append(f"the corpus scene reconstructions of {weights_name}")
     elif config["restorer"]["pair_segment_backbones"]:
         pair_sources.append(
             f"the evaluation segments' baseline runs ({', '.join(BACKBONE_LABELS.get(b, b) for b in config['restorer']['pair_segment_backbones'])}) "
@@ -218,7 +219,7 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
         for arch, changes in recipes.items():
             recipe_lines.append(f"Changes to the paper's recipe ({RESTORER_LABELS.get(arch, arch)}): " + ("; ".join(changes) if changes else "none") + ".")
 
-    origin = "trained in this run" if weights is None else f"trained once on the synthetic corpus, from {weight_set_name(config, weights)} (gates in its GATES.md)"
+    origin = "trained in this run" if weights is None else f"trained once on the synthetic corpus, from {weights_name} (gates in its GATES.md)"
     common = [f"Stand-ins (small models {origin}, named with the paper's models they replace): " + " ".join(lines_models), *recipe_lines, *budgets]
     methods = config.get("methods", {})
     stride_lines = []
