@@ -1,22 +1,19 @@
 """The paper's YOLO11 as the NTA-IoU detector (``recondreamer/evaluation/yolo.py``).
 
-ultralytics needs torchvision, and no torchvision imports beside the project's pinned CPU torch
-2.13.0 (PyPI's wheels fail with "operator torchvision::nms does not exist"); torch 2.14.1 with
-torchvision 0.29.1 does. So the adapter runs in an environment of its own: a venv with that pair,
-ultralytics and the project's other dependencies, built once (about 1.5 min, 6 GB) and kept in
-the user cache (``RECONDREAMER_YOLO_VENV`` names another folder). There tests/yolo_check.py builds
-a random YOLO11n, runs the adapter and ultralytics side by side and `recondreamer evaluate
---detector` on a quick scene. Here, without ultralytics, a YOLO file is refused by name.
+ultralytics needs torchvision, which does not import beside the project's pinned CPU torch, so
+the adapter runs in an environment of its own (tests/yolo_env.py; .ci/run builds it with
+``python3 tests/yolo_env.py``). There tests/yolo_check.py builds a random YOLO11n, runs the
+adapter and ultralytics side by side and `recondreamer evaluate --detector` on a quick scene.
+Here, without ultralytics, a YOLO file is refused by name. System tier (``pytest -m system``):
+without the environment these tests fail, naming the command that builds it.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
-import tomllib
 from collections import Counter
 from pathlib import Path
 
@@ -26,31 +23,18 @@ import pytest
 from recondreamer.errors import CheckpointError
 from recondreamer.evaluation import inference
 from recondreamer.evaluation.yolo import is_ultralytics_checkpoint
+from yolo_env import BUILD_COMMAND, built_python, venv_path
 
 ROOT = Path(__file__).resolve().parents[1]
-# The torch / torchvision pair that imports on these CPU machines, with ultralytics.
-YOLO_STACK = ["torch==2.14.1", "torchvision==0.29.1", "ultralytics>=8.3"]
 VEHICLES = {"car", "bus", "truck"}
-
-
-def yolo_requirements() -> list[str]:
-    """The YOLO stack and the project's dependencies but its pinned torch."""
-    dependencies = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
-    return YOLO_STACK + [d for d in dependencies if not d.replace(" ", "").startswith("torch==")]
 
 
 @pytest.fixture(scope="module")
 def yolo_python() -> Path:
-    cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    venv = Path(os.environ.get("RECONDREAMER_YOLO_VENV") or cache / "recondreamer" / "yolo-venv")
-    requirements = yolo_requirements()
-    marker = venv / "recondreamer-requirements.json"
-    if not (marker.is_file() and json.loads(marker.read_text()) == requirements):
-        shutil.rmtree(venv, ignore_errors=True)
-        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-        subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", *requirements], check=True, timeout=1800)
-        marker.write_text(json.dumps(requirements))  # last: a broken install is rebuilt next time
-    return venv / "bin" / "python"
+    found = built_python()
+    if found is None:
+        pytest.fail(f"no YOLO environment with today's requirements at {venv_path()}: build it with `{BUILD_COMMAND}` (.ci/run does)")
+    return found
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +49,7 @@ def _multiset(boxes, scores) -> Counter:
     return Counter((*np.round(box, 3), round(score, 5)) for box, score in zip(boxes, scores))
 
 
+@pytest.mark.system
 class TestYOLODetector:
     def test_gives_ultralytics_own_boxes_of_the_vehicle_classes_in_frame_pixels(self, yolo_run):
         check = json.loads((yolo_run / "check.json").read_text())
@@ -90,12 +75,14 @@ class TestYOLODetector:
 
 
 class TestWithoutUltralytics:
+    @pytest.mark.system
     def test_a_yolo_file_is_refused_naming_the_file_and_the_extra(self, yolo_run, monkeypatch):
         monkeypatch.setitem(sys.modules, "ultralytics", None)  # import fails, as in the project's own environment
         path = yolo_run / "yolo11n.pt"
         with pytest.raises(CheckpointError, match=r"yolo11n\.pt: an Ultralytics \(YOLO\) checkpoint; .*\[yolo\]"):
             inference.load_detector(path)
 
+    @pytest.mark.system
     def test_only_ultralytics_archives_are_taken_for_yolo(self, yolo_run, tmp_path):
         assert is_ultralytics_checkpoint(yolo_run / "yolo11n.pt")
         assert not is_ultralytics_checkpoint(ROOT / "recondreamer" / "weights" / "vehicle_detector.pt")

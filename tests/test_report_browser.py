@@ -5,8 +5,9 @@ rule and the configuration as HTML tables and text in its frame, the figures as 
 novel-view clips playing), none of them as a download link, without a console error. The study
 page must load its videos and save the choices as the CSV that ``study-ingest`` reads.
 
-Chromium is Debian's package, installed with apt-get when missing (tests/chromium.py); without
-a browser these tests fail. Slow: they share the quick run of tests/workflow_fixtures.py.
+System tier (``pytest -m system``): Chromium is Debian's package, which .ci/run installs; without
+it these tests fail, naming the command that installs it. They share the quick run of
+tests/workflow_fixtures.py.
 """
 
 import csv
@@ -53,8 +54,8 @@ def body_row_headers(page: Page, frame: str, table: str) -> list[str]:
     return page.evaluate(f"[...document.querySelectorAll('{table} tbody tr')].map(row => row.querySelector('th').textContent.trim())", frame)
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(1800)  # may build the quick run (tests/workflow_fixtures.py) and install Chromium
+@pytest.mark.system
+@pytest.mark.timeout(1800)  # may build the quick run (tests/workflow_fixtures.py)
 def test_report_shows_tables_findings_figures_clips_times_and_config_inline(report, browser, quick_experiment):
     results = quick_experiment.root / RESULTS
     with Page(browser) as page:
@@ -100,8 +101,8 @@ def test_report_shows_tables_findings_figures_clips_times_and_config_inline(repo
         assert page.errors() == []
 
 
-@pytest.mark.slow
-@pytest.mark.timeout(1800)  # may build the quick run (tests/workflow_fixtures.py) and install Chromium
+@pytest.mark.system
+@pytest.mark.timeout(1800)  # may build the quick run (tests/workflow_fixtures.py)
 def test_study_page_loads_its_videos_and_saves_the_choices(quick_experiment, browser, tmp_path):
     study = quick_experiment.root / RESULTS / "study"
     clips = [clip["clip_id"] for clip in json.loads((study / "placement.json").read_text())["clips"]]

@@ -7,8 +7,9 @@
 #   snakemake --workflow-profile profiles/slurm --profile .test/slurm/profile ...
 #   .test/slurm/stop.sh [DIR]
 #
-# munged, slurmctld and slurmd run from Debian's packages (apt-get installs slurm-wlm and munge
-# when a binary is missing) with every file in DIR: slurm.conf, the munge key, state, logs and pid
+# munged, slurmctld and slurmd run from Debian's packages slurm-wlm and munge (installed by .ci/run;
+# this script installs nothing and fails, naming the apt-get command, when a binary is missing) with
+# every file in DIR: slurm.conf, the munge key, state, logs and pid
 # files (only munged's socket lies in /tmp/recondreamer-munge-*). Nothing under /etc is written,
 # so a machine's own SLURM or munge set-up is left alone, and SLURM_CONF decides which cluster a
 # command talks to.
@@ -29,25 +30,12 @@ fail() {
 
 [ "$(id -u)" -eq 0 ] || fail "needs root: slurmd starts every job as its user, munged and slurmd run as root here"
 
-# The binaries, installed from Debian's packages on a machine that lacks them (a fresh CI machine).
+# The binaries: Debian's packages, which this script never installs.
 missing=()
 for binary in munged mungekey slurmctld slurmd sbatch squeue srun scontrol sinfo; do
     command -v "$binary" > /dev/null || [ -x "/usr/sbin/$binary" ] || missing+=("$binary")
 done
-if [ ${#missing[@]} -gt 0 ]; then
-    echo "start.sh: ${missing[*]} missing: installing slurm-wlm and munge with apt-get"
-    command -v apt-get > /dev/null || fail "${missing[*]} missing and no apt-get to install slurm-wlm and munge"
-    export DEBIAN_FRONTEND=noninteractive
-    apt-get update -q > /dev/null || fail "apt-get update failed"
-    # The packages' maintainer scripts would start their own munge and slurm services (on the
-    # system's paths): a policy-rc.d that refuses every start keeps them down during the install.
-    policy=/usr/sbin/policy-rc.d
-    [ -e "$policy" ] || { printf '#!/bin/sh\nexit 101\n' > "$policy" && chmod +x "$policy" && added_policy=1; }
-    installed=0
-    apt-get install -y -q --no-install-recommends slurm-wlm munge > /dev/null || installed=$?
-    [ -z "${added_policy:-}" ] || rm -f "$policy"
-    [ "$installed" -eq 0 ] || fail "apt-get install slurm-wlm munge failed"
-fi
+[ ${#missing[@]} -eq 0 ] || fail "${missing[*]} missing: install them with 'apt-get install slurm-wlm munge' (.ci/run does)"
 export PATH="$PATH:/usr/sbin"
 
 conf="$dir/slurm.conf"
