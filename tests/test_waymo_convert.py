@@ -21,6 +21,7 @@ from recondreamer.scene.cameras import project_points, world_to_camera
 from recondreamer.sources.waymo import schema
 from recondreamer.sources.waymo.convert import convert_waymo
 from recondreamer.sources.waymo.tfrecord import write_records
+from recondreamer.sources.waymo.undistort import Undistortion
 
 NUM_FRAMES = 6
 WIDTH, HEIGHT = 64, 48
@@ -176,12 +177,20 @@ def test_static_object_stays_put(converted):
 
 
 def test_camera_matches_waymo_projection(converted):
-    """Project through the converted OpenCV camera and through Waymo's own camera model."""
+    """Project through the recorded camera in OpenCV axes and through Waymo's own camera model; the
+    scene's pinhole camera puts each point where the undistortion moves Waymo's projection."""
     points_world = np.array([[20.0, 2.0, 1.0], [12.0, -3.0, 0.0], [30.0, 0.5, 3.0]])
     fu, fv, cu, cv, k1, k2, p1, p2, k3 = INTRINSIC
+    recorded_K, recorded_distortion = (np.array(v) for v in converted.metadata["recorded_camera"].values())
+    undistortion = Undistortion.of_camera(recorded_K, recorded_distortion, converted.width, converted.height)
+    np.testing.assert_array_equal(converted.distortion, np.zeros(5))
     for t in range(converted.num_frames):
         world_to_cam = world_to_camera(converted.cam_to_world[t])
-        uv, z = project_points(points_world, converted.K, world_to_cam, converted.distortion)
+        uv, z = project_points(points_world, recorded_K, world_to_cam, recorded_distortion)
+        pinhole_uv, _ = project_points(points_world, converted.K, world_to_cam)
+        # not the second point: near this small test camera's edge its strong distortion folds back
+        # (the radius stops growing), so a distorted position there has no unique inverse
+        np.testing.assert_allclose(undistortion.points(uv[[0, 2]]), pinhole_uv[[0, 2]], atol=1e-6)
         # Waymo: camera frame x forward, y left, z up; image coordinates (-y/x, -z/x), OpenCV distortion.
         world_to_waymo_camera = np.linalg.inv(converted.ego_to_world[t] @ CAMERA_EXTRINSIC)
         camera = points_world @ world_to_waymo_camera[:3, :3].T + world_to_waymo_camera[:3, 3]

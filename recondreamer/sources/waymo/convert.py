@@ -2,7 +2,8 @@
 
 Records are streamed one at a time; only record 0 (which holds the segment's map) and the
 selected frames are parsed. The world frame is the ego (vehicle) frame of the first selected
-frame; the camera keeps its original JPEG bytes. See ``docs/waymo.md``.
+frame; every camera image is undistorted onto a pinhole camera (``undistort.py``), whose
+intrinsics the scene holds (distortion zero). See ``docs/waymo.md``.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from recondreamer.io import check_replaceable
 from recondreamer.scene.types import Box, FrameChannels, Polyline, SceneData
 from recondreamer.sources.waymo import geometry, schema
 from recondreamer.sources.waymo.tfrecord import iter_records
+from recondreamer.sources.waymo.undistort import Undistortion
 
 log = logging.getLogger(__name__)
 
@@ -47,8 +49,7 @@ class _Selection:
 
     segment_name: str = ""
     stats: dict = field(default_factory=dict)
-    K: np.ndarray | None = None  # (3,3)
-    distortion: np.ndarray | None = None  # (5,)
+    undistortion: Undistortion | None = None  # the recorded camera and its pinhole twin
     cam_to_ego: np.ndarray | None = None  # (4,4)
     width: int = 0
     height: int = 0
@@ -56,7 +57,7 @@ class _Selection:
     timestamps_micros: list[int] = field(default_factory=list)
     vehicle_to_global: list[np.ndarray] = field(default_factory=list)  # T x (4,4)
     map_pose_offsets: list[np.ndarray] = field(default_factory=list)  # T x (3,)
-    jpegs: list[bytes] = field(default_factory=list)
+    jpegs: list[bytes] = field(default_factory=list)  # undistorted
     lidar_world: list[np.ndarray] = field(default_factory=list)  # T x (N,3) float32 world frame
     boxes_vehicle: list[list[_VehicleBox]] = field(default_factory=list)  # T x boxes
     skipped_labels: int = 0
@@ -135,14 +136,14 @@ def _add_frame(selection: _Selection, frame, path: Path, index: int, camera: str
     where = f"{path}: frame {index}"
     if not frame.HasField("pose"):
         raise ConversionError(f"{where} has no vehicle pose")
-    if selection.K is None:
+    if selection.undistortion is None:
         _set_calibration(selection, frame, where, camera)
     images = [image for image in frame.images if image.name == schema.CAMERA_NAMES[camera]]
     if not images or not images[0].image:
         raise ConversionError(f"{where} has no {camera} camera image")
     jpeg = images[0].image
     _check_jpeg(jpeg, selection.width, selection.height, where)
-    selection.jpegs.append(jpeg)
+    selection.jpegs.append(selection.undistortion.jpeg(jpeg, where))
     if selection.timestamps_micros and frame.timestamp_micros <= selection.timestamps_micros[-1]:
         raise ConversionError(f"{where}: timestamp {frame.timestamp_micros} us does not follow the previous frame's")
     selection.timestamps_micros.append(frame.timestamp_micros)
@@ -164,7 +165,7 @@ def _set_calibration(selection: _Selection, frame, where: str, camera: str) -> N
         raise ConversionError(f"{where} has no {camera} camera calibration")
     calibration = calibrations[0]
     try:
-        selection.K, selection.distortion = geometry.intrinsics(calibration.intrinsic)
+        K, distortion = geometry.intrinsics(calibration.intrinsic)
     except ValueError as error:
         raise ConversionError(f"{where}: {error}") from None
     extrinsic = _matrix(calibration.extrinsic, f"{where} camera extrinsic")
@@ -172,6 +173,9 @@ def _set_calibration(selection: _Selection, frame, where: str, camera: str) -> N
     selection.width, selection.height = calibration.width, calibration.height
     if selection.width <= 0 or selection.height <= 0:
         raise ConversionError(f"{where}: camera calibration has image size {selection.width}x{selection.height}")
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(distortion)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise ConversionError(f"{where}: camera intrinsics {calibration.intrinsic} are not a camera (focal lengths must be positive and finite)")
+    selection.undistortion = Undistortion.of_camera(K, distortion, selection.width, selection.height)
     lasers = [c for c in context.laser_calibrations if c.name == schema.LASER_TOP]
     selection.top_laser = lasers[0] if lasers else None
     selection.segment_name = context.name
@@ -270,8 +274,8 @@ def _scene_data(selection: _Selection, path: Path, first: int, last: int, camera
         source="waymo",
         width=selection.width,
         height=selection.height,
-        K=selection.K,
-        distortion=selection.distortion,
+        K=selection.undistortion.pinhole_K,
+        distortion=np.zeros(5),
         cam_to_ego=selection.cam_to_ego,
         ego_to_world=ego_to_world,
         timestamps=timestamps,
@@ -286,6 +290,8 @@ def _scene_data(selection: _Selection, path: Path, first: int, last: int, camera
             "frame_range": [first, last],
             "camera": camera,
             "global_from_world": selection.vehicle_to_global[0].tolist(),
+            # The calibration the recorded images follow; the scene's images are undistorted from it.
+            "recorded_camera": {"K": selection.undistortion.K.tolist(), "distortion": selection.undistortion.distortion.tolist()},
             "skipped_labels": selection.skipped_labels,
             **selection.stats,
         },
