@@ -2,7 +2,7 @@
 
 The report must show every result inside the page (the five tables, the findings, the time per
 rule and the configuration as HTML tables and text in its frame, the figures as images, the
-novel-view clips playing), none of them as a download link, without a console error. The study
+novel-view clips playing as WebM video), none of them as a download link, without a console error. The study
 page must load its videos and save the choices as the CSV that ``study-ingest`` reads.
 
 System tier (``pytest -m system``): Chromium is Debian's package, which .ci/run installs; without
@@ -91,8 +91,12 @@ def test_report_shows_tables_findings_figures_clips_times_and_config_inline(repo
 
         view(page, "2. Figures", "Novel-view clips")
         frame = report_frame(page, "quick-01.html")
-        page.wait_for(ALL_IMAGES_LOADED, frame=frame, what="the clip's GIF loaded")
-        assert page.evaluate("document.images[0].src.startsWith('data:image/gif;base64,') && document.images[0].naturalHeight", frame) > 100
+        # The WebM video decodes (its first frame shown: readyState >= 2) and plays: its time advances.
+        page.wait_for("(() => { const video = document.querySelector('video'); return video && video.readyState >= 2 && video.videoHeight; })()",
+                      frame=frame, what="the clip's video decoded")
+        assert page.evaluate("document.querySelector('video').src.startsWith('data:video/webm;base64,') && document.querySelector('video').videoHeight", frame) > 100
+        page.wait_for("document.querySelector('video').currentTime > 0.3 && !document.querySelector('video').paused", frame=frame, what="the clip's video playing")
+        assert page.evaluate("document.querySelector('video').error", frame) is None
 
         view(page, "2. Figures", "Metrics")
         page.wait_for(f"(() => {{ const image = document.querySelector('img[src^=\"data:image/png\"]'); return image && {ALL_IMAGES_LOADED}; }})()",

@@ -1,4 +1,4 @@
-"""Novel-view clips (GIF and its page) and the configuration page, on a tiny generated scene."""
+"""Novel-view clips (WebM video, GIF and the page playing the video) and the configuration page, on a tiny generated scene."""
 
 import base64
 import re
@@ -72,9 +72,14 @@ def test_clip_shows_each_panel_enlarged_under_its_label_and_the_true_view(tmp_pa
         shown = image[y : y + panel_h : scale, x : x + panel_w : scale].astype(int)
         assert np.abs(shown - truth.novel_image("shift@6", t).astype(int)).mean() < 4.0
         assert image[: clips._LABEL_HEIGHT].min() < 100  # dark label text on the white strip
+    # The video: the same frames (VP8 keeps flat colours within a few levels), embedded in the page.
+    video = clips.decode_video(out.with_suffix(".webm"))
+    assert len(video) == FRAMES and video[0].shape == frames[0][0].shape
+    for (image, _), decoded in zip(frames, video):
+        assert np.abs(decoded.astype(int) - image.astype(int)).mean() < 3.0
     page = out.with_suffix(".html").read_text()
-    embedded = re.search(r'src="data:image/gif;base64,([^"]+)"', page).group(1)
-    assert base64.b64decode(embedded) == out.read_bytes()
+    embedded = re.search(r'<video src="data:video/webm;base64,([^"]+)"[^>]* autoplay loop muted', page).group(1)
+    assert base64.b64decode(embedded) == out.with_suffix(".webm").read_bytes()
     for label in ("degraded (a)", "restored", "ReconDreamer (a)", clips.TRUTH_LABEL):
         assert f"<b>{label}</b>" in page
     assert str(tmp_path / "b") in page
@@ -82,7 +87,8 @@ def test_clip_shows_each_panel_enlarged_under_its_label_and_the_true_view(tmp_pa
 
 def test_clip_without_a_true_view_and_bad_inputs(tmp_path, scene_dir):
     folder = flat_frames(tmp_path / "a", lambda t: (50, 50, 50))
-    gif, page = clips.novel_view_clip(scene_dir, "shift@1", [("only", folder)], tmp_path / "one.gif", min_panel_width=48)
+    gif, video, page = clips.novel_view_clip(scene_dir, "shift@1", [("only", folder)], tmp_path / "one.gif", min_panel_width=48)
+    assert video == tmp_path / "one.webm"
     image, _ = gif_frames(gif)[0]
     assert image.shape == (clips._LABEL_HEIGHT + HEIGHT, WIDTH, 3)  # the scene has no true view along shift@1
     assert clips.TRUTH_LABEL not in page.read_text()
@@ -98,7 +104,7 @@ def test_clip_without_a_true_view_and_bad_inputs(tmp_path, scene_dir):
         clips.novel_view_clip(scene_dir, "shift@6", [("a", folder)], tmp_path / "x.mp4")
     with pytest.raises(RecondreamerError, match="--fps 0"):
         clips.novel_view_clip(scene_dir, "shift@6", [("a", folder)], tmp_path / "x.gif", fps=0)
-    assert not (tmp_path / "x.gif").exists()
+    assert not (tmp_path / "x.gif").exists() and not (tmp_path / "x.webm").exists()
     assert clips.parse_panel("a = b=c/d") == ("a = b", Path("c/d"))
 
 

@@ -67,10 +67,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
     p = subparsers.add_parser(
         "novel-view-clip",
-        help="animated GIF (and an HTML page showing it) of renders side by side with the true novel view",
+        help="WebM video, animated GIF and an HTML page playing the video, of renders side by side with the true novel view",
         description="Read each --panel frame folder (frames 0..T-1 of the scene's size) and, when the scene has them, the "
-        "true novel views along --trajectory, and write OUT (GIF: the panels two a row, each under its label) and OUT's .html "
-        "sibling (the GIF embedded, for the Snakemake report).",
+        "true novel views along --trajectory, and write OUT (GIF: the panels two a row, each under its label), OUT's .webm "
+        "sibling (the same clip as WebM video) and OUT's .html sibling (the video embedded, for the Snakemake report).",
     )
     p.add_argument("--scene", required=True, type=Path, help="scene directory (frame count and size; true novel views)")
     p.add_argument("--trajectory", required=True, help="trajectory the panels were rendered along (e.g. shift@6)")
@@ -168,8 +168,8 @@ def run_pdus_figure(args: argparse.Namespace) -> int:
 def run_novel_view_clip(args: argparse.Namespace) -> int:
     from recondreamer.report.clips import novel_view_clip, parse_panel
 
-    gif, page = novel_view_clip(args.scene, args.trajectory, [parse_panel(text) for text in args.panels], args.out, args.fps, args.min_panel_width)
-    log.info("wrote %s and %s", gif, page)
+    gif, video, page = novel_view_clip(args.scene, args.trajectory, [parse_panel(text) for text in args.panels], args.out, args.fps, args.min_panel_width)
+    log.info("wrote %s, %s and %s", gif, video, page)
     return 0
 
 

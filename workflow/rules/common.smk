@@ -363,7 +363,7 @@ CLIP_SEGMENTS = SEGMENTS[: config["report"]["clip_segments"]]
 
 
 def clip_files():
-    return [results("clips", f"{s}.{suffix}") for s in CLIP_SEGMENTS for suffix in ("gif", "html")]
+    return [results("clips", f"{s}.{suffix}") for s in CLIP_SEGMENTS for suffix in ("gif", "webm", "html")]
 
 
 def qualitative_render(segment, method):

@@ -149,6 +149,7 @@ rule novel_view_clip:
         recondreamer=qualitative_render("{segment}", PLAN.preference_method()),
     output:
         gif=results("clips", "{segment}.gif"),
+        webm=results("clips", "{segment}.webm"),
         html=report(results("clips", "{segment}.html"), caption="../report/novel_view_clip.rst", category="2. Figures", subcategory="Novel-view clips", labels={"segment": "{segment}"}),
     params:
         trajectory=config["report"]["qualitative_trajectory"],
