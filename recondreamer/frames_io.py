@@ -12,9 +12,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from recondreamer.errors import RecondreamerError
+from recondreamer.image_codec import decode_rgb, encode_rgb
 from recondreamer.io import atomic_directory, write_json_atomic
 
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -55,14 +55,15 @@ def frame_files(directory: str | Path, num_frames: int | None = None) -> list[Pa
 
 def read_frame(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:  # size (W,H) -> (H,W,3) uint8
     try:
-        with Image.open(path) as image:
-            if size is not None and image.size != tuple(size):
-                raise FrameError(f"{path}: frame is {image.size[0]}x{image.size[1]}, expected {size[0]}x{size[1]}")
-            return np.asarray(image.convert("RGB"))
-    except FrameError:
-        raise
-    except Exception as error:  # PIL raises several types for unreadable files
+        data = Path(path).read_bytes()
+    except OSError as error:
         raise FrameError(f"{path}: not a readable image ({error})") from None
+    frame = decode_rgb(data)
+    if frame is None:
+        raise FrameError(f"{path}: not a readable image (not a PNG or JPEG OpenCV can decode; {len(data)} bytes)")
+    if size is not None and (frame.shape[1], frame.shape[0]) != tuple(size):
+        raise FrameError(f"{path}: frame is {frame.shape[1]}x{frame.shape[0]}, expected {size[0]}x{size[1]}")
+    return frame
 
 
 def read_frame_folder(directory: str | Path, num_frames: int | None = None, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -97,6 +98,6 @@ def write_frames(path: str | os.PathLike, frames: np.ndarray, info: dict | None 
     """Write ``{t:03d}.png`` frames (and ``info.json``) into a folder, atomically."""
     with atomic_directory(path, "frames") as tmp:
         for t, frame in enumerate(frames):
-            Image.fromarray(frame).save(tmp / f"{t:03d}.png", compress_level=1)
+            (tmp / f"{t:03d}.png").write_bytes(encode_rgb(frame, "png"))
         if info is not None:
             write_json_atomic(tmp / "info.json", info)

@@ -10,7 +10,6 @@ for (and checked then). ``Scene.check_all()`` decodes everything (``recondreamer
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import math
 import os
@@ -21,6 +20,7 @@ import numpy as np
 from PIL import Image
 
 from recondreamer.errors import SceneFormatError
+from recondreamer.image_codec import decode_rgb, encode_rgb
 from recondreamer.io import OUTPUT_MARKER, atomic_directory
 from recondreamer.scene import trajectories
 from recondreamer.scene.types import (
@@ -190,10 +190,16 @@ class _FrameFiles:
                 else:
                     _image_header(file, CHANNEL_PNG_MODES[channel], self.width, self.height)
 
-    def image(self, t: int) -> np.ndarray:  # (H,W,3) uint8
+    def image(self, t: int) -> np.ndarray:  # (H,W,3) uint8, a fresh writable array per call
         file = self.path("images", t)
-        with _decode_image(file, self.width, self.height) as image:
-            return np.array(image.convert("RGB"))  # a fresh, writable array per call
+        if not file.is_file():
+            _fail(file, "missing file")
+        image = decode_rgb(file.read_bytes())
+        if image is None:
+            _fail(file, "cannot decode image (not a PNG or JPEG OpenCV can decode)")
+        if image.shape[:2] != (self.height, self.width):
+            _fail(file, f"wrong image size {image.shape[1]}x{image.shape[0]}, the scene is {self.width}x{self.height}")
+        return image
 
     def encoded_image(self, t: int) -> bytes:
         return self.path("images", t).read_bytes()
@@ -602,20 +608,16 @@ def _write_image(file: Path, image: Any, image_format: str, what: str) -> None:
         if _encoded_format(bytes(image)) == image_format:
             file.write_bytes(bytes(image))
             return
-        try:
-            with Image.open(io.BytesIO(bytes(image))) as decoded:
-                image = np.asarray(decoded.convert("RGB"))
-        except OSError as error:
-            raise SceneFormatError(f"{what}: encoded image bytes cannot be decoded ({error})") from None
+        decoded = decode_rgb(bytes(image))
+        if decoded is None:
+            raise SceneFormatError(f"{what}: encoded image bytes cannot be decoded (not a PNG or JPEG)")
+        image = decoded
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
         raise SceneFormatError(
             f"{what}: expected an (H,W,3) uint8 array or encoded bytes, got {image.shape} {image.dtype}"
         )
-    if image_format == "png":
-        Image.fromarray(image).save(file, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
-    else:
-        Image.fromarray(image).save(file, format="JPEG", quality=95)
+    file.write_bytes(encode_rgb(image, image_format))
 
 
 def _check_count(values: list | None, num_frames: int, what: str) -> None:
