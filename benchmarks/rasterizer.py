@@ -2,8 +2,10 @@
 
 Prints forward (no grad) and forward+backward milliseconds per call on a random scene of N
 Gaussians in front of the camera whose splats span about 0.5-4 px standard deviation, as a
-street scene seen at 240x160 would. Run: ``python benchmarks/rasterizer.py`` (options below);
-``--stages`` adds a per-stage breakdown of the CPU kernel's forward+backward.
+street scene seen at 240x160 would, at each requested thread count (1 and 2 by default), and
+whether the CPU kernel's gradients are bit-identical at those thread counts. Run:
+``python benchmarks/rasterizer.py`` (options below); ``--stages`` adds a per-stage breakdown of
+the CPU kernel's forward+backward at each thread count.
 """
 
 from __future__ import annotations
@@ -67,6 +69,16 @@ def measure(backend: str, scene, width: int, height: int, repeats: int, device: 
         sync()
 
     return time_call(forward, repeats), time_call(forward_backward, repeats)
+
+
+def cpu_gradients(scene, width: int, height: int) -> list[torch.Tensor]:
+    """Gradients of the CPU kernel's forward+backward with respect to every input and to means2d."""
+    means, quats, scales, opacities, colors, viewmat, K = scene
+    params = [t.clone().requires_grad_() for t in (means, quats, scales, opacities, colors)]
+    out = rasterize(*params, viewmat, K, width, height, backend="cpu")
+    out["means2d"].retain_grad()
+    (out["rgb"].sum() + out["depth"].mean() + out["alpha"].sum()).backward()
+    return [param.grad for param in params] + [out["means2d"].grad]
 
 
 def stage_breakdown(scene, width: int, height: int, repeats: int) -> list[tuple[str, tuple[float, float]]]:
@@ -136,13 +148,12 @@ def main() -> None:
     parser.add_argument("--width", type=int, default=240, help="image width in pixels")
     parser.add_argument("--height", type=int, default=160, help="image height in pixels")
     parser.add_argument("--counts", type=int, nargs="+", default=[20_000, 50_000, 100_000], help="Gaussian counts")
-    parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="torch intra-op thread counts")
     parser.add_argument("--repeats", type=int, default=7, help="timed calls per cell (median reported)")
     parser.add_argument("--reference-repeats", type=int, default=2, help="timed calls for the slow reference")
     parser.add_argument("--skip-reference", action="store_true", help="time only the fast backends")
     parser.add_argument("--stages", action="store_true", help="also print the CPU kernel's per-stage breakdown")
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
 
     backends = [("cpu", "cpu", args.repeats)]
     if not args.skip_reference:
@@ -155,31 +166,44 @@ def main() -> None:
         except ImportError:
             pass
 
-    print(f"# {args.width}x{args.height}, {torch.get_num_threads()} threads, torch {torch.__version__}")
+    print(f"# {args.width}x{args.height}, threads {' and '.join(map(str, args.threads))}, torch {torch.__version__}")
     print("# wall ms per call (median); in brackets process CPU ms per call; speed-ups from wall time")
-    header = f"{'N':>8} {'backend':>8} {'fwd ms':>18} {'fwd+bwd ms':>20} {'speed-up fwd':>13} {'speed-up fwd+bwd':>17}"
+    header = (
+        f"{'N':>8} {'threads':>7} {'backend':>8} {'fwd ms':>18} {'fwd+bwd ms':>20} "
+        f"{'speed-up fwd':>13} {'speed-up fwd+bwd':>17}"
+    )
     print(header)
+    identical = []  # per N: whether the CPU kernel's gradients are bit-identical at every thread count
     for count in args.counts:
         scene = random_scene(count, args.width, args.height)
-        results = {}
-        for backend, device, repeats in backends:
-            results[backend] = measure(backend, scene, args.width, args.height, repeats, device)
-        for backend, _, _ in backends:
-            (fwd, fwd_cpu), (fwd_bwd, fwd_bwd_cpu) = results[backend]
-            if "torch" in results and backend != "torch":
-                (ref_fwd, _), (ref_fwd_bwd, _) = results["torch"]
-                ratios = f"{ref_fwd / fwd:>12.1f}x {ref_fwd_bwd / fwd_bwd:>16.1f}x"
-            else:
-                ratios = f"{'':>13} {'':>17}"
-            timings = f"{fwd:>9.1f} [{fwd_cpu:>7.1f}] {fwd_bwd:>10.1f} [{fwd_bwd_cpu:>7.1f}]"
-            print(f"{count:>8} {backend:>8} {timings} {ratios}", flush=True)
+        gradients = []
+        for threads in args.threads:
+            torch.set_num_threads(threads)
+            results = {}
+            for backend, device, repeats in backends:
+                results[backend] = measure(backend, scene, args.width, args.height, repeats, device)
+            for backend, _, _ in backends:
+                (fwd, fwd_cpu), (fwd_bwd, fwd_bwd_cpu) = results[backend]
+                if "torch" in results and backend != "torch":
+                    (ref_fwd, _), (ref_fwd_bwd, _) = results["torch"]
+                    ratios = f"{ref_fwd / fwd:>12.1f}x {ref_fwd_bwd / fwd_bwd:>16.1f}x"
+                else:
+                    ratios = f"{'':>13} {'':>17}"
+                timings = f"{fwd:>9.1f} [{fwd_cpu:>7.1f}] {fwd_bwd:>10.1f} [{fwd_bwd_cpu:>7.1f}]"
+                print(f"{count:>8} {threads:>7} {backend:>8} {timings} {ratios}", flush=True)
+            gradients.append(cpu_gradients(scene, args.width, args.height))
+        identical.append(all(torch.equal(a, b) for other in gradients[1:] for a, b in zip(gradients[0], other)))
+    verdict = "bit-identical" if all(identical) else "NOT bit-identical"
+    print(f"# CPU kernel gradients at threads {', '.join(map(str, args.threads))}: {verdict} at every N")
     if args.stages:
         print("\n# CPU kernel stages (wall ms [process CPU ms], medians of separately timed calls)")
-        print(f"{'N':>8} {'stage':>20} {'ms':>18}")
+        print(f"{'N':>8} {'threads':>7} {'stage':>20} {'ms':>18}")
         for count in args.counts:
             scene = random_scene(count, args.width, args.height)
-            for stage, (wall, cpu) in stage_breakdown(scene, args.width, args.height, args.repeats):
-                print(f"{count:>8} {stage:>20} {wall:>9.1f} [{cpu:>7.1f}]", flush=True)
+            for threads in args.threads:
+                torch.set_num_threads(threads)
+                for stage, (wall, cpu) in stage_breakdown(scene, args.width, args.height, args.repeats):
+                    print(f"{count:>8} {threads:>7} {stage:>20} {wall:>9.1f} [{cpu:>7.1f}]", flush=True)
 
 
 if __name__ == "__main__":

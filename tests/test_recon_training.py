@@ -232,6 +232,46 @@ def test_render_command_for_every_trajectory_kind(scene, street_run, tmp_path):
     )
 
 
+def train_with_threads(scene, config, run_dir, threads: int):
+    """Train with ``threads`` torch threads; the final model's tensors and the training-view renders."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        model = train_scene(scene, config, run_dir)
+        renders = render_trajectory(model, scene, scene.cam_to_world)
+    finally:
+        torch.set_num_threads(previous)
+    return torch.load(run_dir / "model.pt", weights_only=True)["model_state"], renders
+
+
+def assert_same_runs(first, second) -> None:
+    (state, renders), (other_state, other_renders) = first, second
+    assert other_state.keys() == state.keys()
+    for name, tensor in state.items():
+        assert torch.equal(other_state[name], tensor), name
+    np.testing.assert_array_equal(other_renders, renders)
+
+
+def test_street_gives_the_same_model_at_any_thread_count(scene, tmp_path):
+    # Densification at steps 50 and 100 would turn any drift of the gradients into other Gaussians.
+    config = small_config("street", iterations=150)
+    runs = [train_with_threads(scene, config, tmp_path / f"run{i}", threads) for i, threads in enumerate((2, 2, 1))]
+    assert_same_runs(runs[0], runs[1])
+    assert_same_runs(runs[0], runs[2])
+    notes = json.loads((tmp_path / "run0" / "run.json").read_text())["reproducibility"]
+    assert notes["threads"] == 2 and notes["repeats"].endswith("and at any other thread count")
+
+
+def test_deformable_repeats_at_the_same_thread_count(scene, tmp_path):
+    # The deformation MLP's weight gradients are MKL matrix products summed over the Gaussians,
+    # split by thread count: the same count repeats, and run.json says that other counts may not.
+    config = small_config("deformable", iterations=100)
+    runs = [train_with_threads(scene, config, tmp_path / f"run{i}", 2) for i in range(2)]
+    assert_same_runs(runs[0], runs[1])
+    notes = json.loads((tmp_path / "run0" / "run.json").read_text())["reproducibility"]
+    assert "at 2 thread(s)" in notes["repeats"] and "MKL" in notes["repeats"]
+
+
 class Interrupt(Exception):
     pass
 
@@ -251,7 +291,7 @@ def test_resume_after_interruption_matches_uninterrupted_run(scene, tmp_path):
     resumed = train_scene(scene, config, tmp_path / "b")
     assert len(resumed.gaussians) == len(reference.gaussians)
     for name, param in reference.gaussians.params.items():
-        assert torch.allclose(resumed.gaussians.params[name], param, atol=1e-5), name
+        assert torch.equal(resumed.gaussians.params[name], param), name  # bit-identical
     # A checkpoint of another run is refused, not overwritten.
     with pytest.raises(CheckpointError, match="different run"):
         train_scene(scene, small_config("s3", iterations=30), tmp_path / "b")
@@ -327,10 +367,12 @@ def test_train_command_writes_run_directory(scene, tmp_path):
         "--out",
         str(run),
     ]
-    assert (
-        cli_main([*args, "--preset", "quick", "--iterations", "5", "--threads", "1"])
-        == 0
-    )
+    previous = torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled()
+    try:
+        code = cli_main([*args, "--preset", "quick", "--iterations", "5", "--threads", "1", "--deterministic"])
+    finally:  # --deterministic switches torch's mode for the process
+        torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])
+    assert code == 0
     assert {p.name for p in run.iterdir()} >= {
         "checkpoint.pt",
         "model.pt",
@@ -343,4 +385,5 @@ def test_train_command_writes_run_directory(scene, tmp_path):
         and info["step"] == 5
         and info["model_type"] == "deformable"
     )
+    assert info["reproducibility"]["deterministic_algorithms"] and info["reproducibility"]["threads"] == 1
     assert load_model(run).model_type == "deformable"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -217,3 +218,34 @@ def test_depth_free_view_has_no_depth_term():
     without, parts_free = view_loss(render, target, None, None, LossConfig(depth=1.0))
     assert parts["depth"] == pytest.approx(1.5) and "depth" not in parts_free
     assert float(with_depth - without) == pytest.approx(1.5)
+
+
+def test_reproducibility_notes_say_what_a_run_promises(monkeypatch):
+    from recondreamer.recon.reproducibility import reproducibility
+
+    model = tiny_pvg(1)
+    monkeypatch.delenv("MKL_CBWR", raising=False)
+    notes = reproducibility(make_config("pvg", "quick"), model)
+    assert notes["repeats"].endswith("and at any other thread count") and notes["threads"] == torch.get_num_threads()
+    assert "reference backend" in reproducibility(make_config("pvg", "quick", backend="torch"), model)["repeats"]
+    # A model with shared networks (deformable, s3): MKL's products split by thread count unless strict.
+    monkeypatch.setattr(model, "field_parameters", lambda: [torch.nn.Parameter(torch.zeros(1))])
+    assert "MKL_CBWR=AUTO,STRICT" in reproducibility(make_config("deformable", "quick"), model)["repeats"]
+    monkeypatch.setenv("MKL_CBWR", "AUTO,STRICT")
+    assert reproducibility(make_config("deformable", "quick"), model)["repeats"].endswith("at any other thread count")
+    cuda = reproducibility(make_config("pvg", "quick", device="cuda"), model)
+    assert cuda["repeats"].startswith("not bit-reproducible") and "atomic" in cuda["repeats"]
+
+
+def test_deterministic_option_turns_on_torchs_deterministic_mode(monkeypatch):
+    from recondreamer.recon.reproducibility import reproducibility, use_deterministic_algorithms
+
+    monkeypatch.setenv("CUBLAS_WORKSPACE_CONFIG", ":16:8")  # a user's own setting wins
+    previous = torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled()
+    try:
+        use_deterministic_algorithms()
+        assert torch.are_deterministic_algorithms_enabled() and torch.is_deterministic_algorithms_warn_only_enabled()
+        assert reproducibility(make_config("pvg", "quick"), tiny_pvg(1))["deterministic_algorithms"]
+    finally:
+        torch.use_deterministic_algorithms(previous[0], warn_only=previous[1])
+    assert os.environ["CUBLAS_WORKSPACE_CONFIG"] == ":16:8"

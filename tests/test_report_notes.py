@@ -105,3 +105,9 @@ def test_table5_states_each_strides_updates_and_reach(run):
 def test_parameter_count_leaves_out_batch_norm_statistics():
     state = {"conv.weight": torch.zeros(3, 4), "bn.running_mean": torch.zeros(4), "bn.running_var": torch.zeros(4), "bn.num_batches_tracked": torch.zeros(())}
     assert state_parameters(state) == 12
+
+
+def test_reconstructions_on_cuda_are_said_not_to_repeat(run):
+    assert not any("atomic" in line for line in run_notes(run)[1])  # CPU reconstructions repeat: no note
+    run["recon"]["device"] = "cuda"
+    assert any("gsplat's backward pass adds gradients with atomic operations" in line for line in run_notes(run)[1])

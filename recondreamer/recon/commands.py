@@ -21,19 +21,27 @@ def add_training_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="default", choices=PRESETS,
                         help="size preset: quick (tests), default (CPU, synthetic scenes), paper (GPU, 50k iterations)")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    parser.add_argument("--deterministic", action="store_true",
+                        help="turn on torch.use_deterministic_algorithms (warn-only), for CUDA runs: CPU runs are "
+                        "bit-identical run to run without it, and CUDA runs are not even with it (gsplat's backward "
+                        "pass adds gradients atomically); run.json says what a run promises")
     add_config_options(parser, ReconConfig, TRAIN_OPTIONS, defaults=make_config(MODEL_TYPES[0], "default"),
                        title="training (ReconConfig; defaults shown for --preset default)")
 
 
 def training_config(args: argparse.Namespace) -> ReconConfig:
     """The reconstruction config the options of ``add_training_options`` ask for, its device checked
-    (a clear error before any work when CUDA is missing); sets the torch thread count."""
+    (a clear error before any work when CUDA is missing); sets the torch thread count and, with
+    ``--deterministic``, torch's deterministic mode."""
     import torch
 
     from recondreamer.device import resolve_device
+    from recondreamer.recon.reproducibility import use_deterministic_algorithms
 
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.deterministic:
+        use_deterministic_algorithms()
     config = apply_options(args, make_config(args.model, args.preset), TRAIN_OPTIONS)
     resolve_device(config.device, "--device")
     return config

@@ -9,8 +9,8 @@ densification, each parameter group has its own learning-rate schedule) and the 
 
 Resume is exact: the checkpoint holds the model, Adam moments, density statistics and both
 random generators (view sampling and split sampling), so a resumed run takes the same steps as
-an uninterrupted one. Results are bit-identical when the rasteriser is deterministic (the
-reference backend; the fast kernel is deterministic when its gradient reduction is).
+an uninterrupted one. On the CPU the results are bit-identical run to run; ``run.json`` says
+what the run promises (``recon.reproducibility``).
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from recondreamer.recon.density import (
 )
 from recondreamer.recon.losses import view_loss
 from recondreamer.recon.models import MODEL_CLASSES
+from recondreamer.recon.reproducibility import reproducibility
 from recondreamer.training_loop import ProgressLog, run_steps
 
 logger = logging.getLogger("recondreamer.recon")
@@ -152,6 +153,7 @@ class Trainer:
                 logger.info("resumed from %s at step %d/%d", CHECKPOINT_NAME, self.step, total)  # marks the resume in train.log
             if self.step >= total:
                 logger.info("already trained %d/%d steps", self.step, total)
+            logger.info("reproducibility: %s", reproducibility(config, self.model)["repeats"])
             progress = ProgressLog(config.model, total, self.step, config.log_every, logger, self._describe)
 
             def one_step(done: int) -> dict[str, float]:
@@ -236,6 +238,7 @@ class Trainer:
             if np.isnan(self.last_psnr)
             else round(self.last_psnr, 3),
             "wall_time_s": None if wall_time is None else round(wall_time, 2),
+            "reproducibility": reproducibility(self.config, self.model),
             "config": to_dict(self.config),
         }
         write_json_atomic(self.run_dir / RUN_JSON, info)

@@ -221,6 +221,12 @@ def run_notes(config: Mapping) -> dict[int, list[str]]:
 
     origin = "trained in this run" if weights is None else f"trained once on the synthetic corpus, from {weights_name} (gates in its GATES.md)"
     common = [f"Stand-ins (small models {origin}, named with the paper's models they replace): " + " ".join(lines_models), *recipe_lines, *budgets]
+    if str(config["recon"].get("device") or "cpu").startswith("cuda"):
+        common.append(
+            "Reconstructions trained on CUDA: gsplat's backward pass adds gradients with atomic operations, in an order "
+            "that changes from run to run, so a rerun with the same seeds gives slightly different numbers "
+            "(on the CPU they repeat bit for bit)."
+        )
     methods = config.get("methods", {})
     stride_lines = []
     for stride in experiment["strides"]:

@@ -207,7 +207,7 @@ std::vector<at::Tensor> composite_forward(const at::Tensor& means2d, const at::T
 }
 
 // Gradients of the loss with respect to the splats' means2d (M,2), conics (M,3), colors (M,3),
-// opacities (M,) and depths (M,): the sum of the workers' buffers, written field by field.
+// opacities (M,) and depths (M,), written field by field; bit-identical for any thread count.
 std::vector<at::Tensor> composite_backward(const at::Tensor& packed, int64_t width, int64_t height,
                                            const at::Tensor& transmittance_in, const at::Tensor& last_in,
                                            const at::Tensor& offsets_in, const at::Tensor& ids_in,
@@ -231,8 +231,8 @@ std::vector<at::Tensor> composite_backward(const at::Tensor& packed, int64_t wid
   TORCH_CHECK(grad_depth.sizes() == at::IntArrayRef({height, width}), "grad_depth must have shape (H,W)");
   TORCH_CHECK(grad_alpha.sizes() == at::IntArrayRef({height, width}), "grad_alpha must have shape (H,W)");
   const int64_t count = packed.size(0);
-  const int64_t workers = at::get_num_threads();
-  at::Tensor buffers = at::zeros({workers, count, rs::kFields}, packed.options());
+  at::Tensor entry_grads = at::empty({ids.numel(), rs::kFields}, packed.options());
+  at::Tensor packed_grads = at::zeros({count, rs::kFields}, packed.options());
   const auto options = packed.options();
   at::Tensor grad_means2d = at::empty({count, 2}, options), grad_conics = at::empty({count, 3}, options);
   at::Tensor grad_colors = at::empty({count, 3}, options), grad_opacities = at::empty({count}, options);
@@ -244,18 +244,15 @@ std::vector<at::Tensor> composite_backward(const at::Tensor& packed, int64_t wid
     const rs::BackwardInputs<scalar_t> in{transmittance.data_ptr<scalar_t>(), last.data_ptr<int32_t>(),
                                           grad_rgb.data_ptr<scalar_t>(), grad_depth.data_ptr<scalar_t>(),
                                           grad_alpha.data_ptr<scalar_t>()};
-    scalar_t* sums = buffers.data_ptr<scalar_t>();
-    rs::composite_backward(packed.data_ptr<scalar_t>(), count, width, height, workers, AtenParallelFor(), lists, in,
-                           sums);
+    scalar_t* sums = packed_grads.data_ptr<scalar_t>();
+    rs::composite_backward(packed.data_ptr<scalar_t>(), count, width, height, at::get_num_threads(),
+                           AtenParallelFor(), lists, in, entry_grads.data_ptr<scalar_t>(), sums);
     scalar_t *mean = grad_means2d.data_ptr<scalar_t>(), *conic = grad_conics.data_ptr<scalar_t>();
     scalar_t *rgb = grad_colors.data_ptr<scalar_t>(), *opacity = grad_opacities.data_ptr<scalar_t>();
     scalar_t* depth = grad_depths.data_ptr<scalar_t>();
     at::parallel_for(0, count, kSplatsPerTask, [&](int64_t begin, int64_t end) {
       for (int64_t i = begin; i < end; ++i) {
-        scalar_t g[rs::kFields];
-        std::copy(sums + i * rs::kFields, sums + (i + 1) * rs::kFields, g);
-        for (int64_t worker = 1; worker < workers; ++worker)
-          for (int f = 0; f < rs::kFields; ++f) g[f] += sums[(worker * count + i) * rs::kFields + f];
+        const scalar_t* g = sums + i * rs::kFields;
         mean[2 * i] = g[0], mean[2 * i + 1] = g[1];
         conic[3 * i] = g[2], conic[3 * i + 1] = g[3], conic[3 * i + 2] = g[4];
         rgb[3 * i] = g[5], rgb[3 * i + 1] = g[6], rgb[3 * i + 2] = g[7];
