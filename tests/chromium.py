@@ -231,7 +231,8 @@ def take_screenshots(report: Path, study: Path, out_dir: Path) -> list[Path]:
         clip = page.evaluate("Object.keys(results).find(path => path.includes('/clips/')).split('/').pop()")
         page.click_text("Results")
         show_report_result(page, "2. Figures", "Novel-view clips")
-        page.wait_for(all_images_loaded, frame=report_frame(page, clip))
+        page.wait_for("(() => { const video = document.querySelector('video'); return video && video.readyState >= 2; })()",
+                      frame=report_frame(page, clip), what="the clip's video decoded")
         written.append(page.screenshot(out_dir / "report-clip.png"))
     with Page(binary, 1000, 900) as page:
         page.open(study / "index.html")
