@@ -26,7 +26,7 @@ SHOWN_INLINE = ("text/html", "image/png", "image/jpeg", "image/svg+xml")  # what
 ALL_IMAGES_LOADED = "document.images.length > 0 && [...document.images].every(image => image.complete && image.naturalWidth > 0)"
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # session: checked before the session's quick run is built, so a missing browser fails at once
 def browser() -> str:
     try:
         return chromium_binary()
@@ -56,7 +56,7 @@ def body_row_headers(page: Page, frame: str, table: str) -> list[str]:
 
 @pytest.mark.system
 @pytest.mark.timeout(1800)  # may build the quick run (tests/workflow_fixtures.py)
-def test_report_shows_tables_findings_figures_clips_times_and_config_inline(report, browser, quick_experiment):
+def test_report_shows_tables_findings_figures_clips_times_and_config_inline(browser, report, quick_experiment):
     results = quick_experiment.root / RESULTS
     with Page(browser) as page:
         page.open(report)
@@ -107,7 +107,7 @@ def test_report_shows_tables_findings_figures_clips_times_and_config_inline(repo
 
 @pytest.mark.system
 @pytest.mark.timeout(1800)  # may build the quick run (tests/workflow_fixtures.py)
-def test_study_page_loads_its_videos_and_saves_the_choices(quick_experiment, browser, tmp_path):
+def test_study_page_loads_its_videos_and_saves_the_choices(browser, quick_experiment, tmp_path):
     study = quick_experiment.root / RESULTS / "study"
     clips = [clip["clip_id"] for clip in json.loads((study / "placement.json").read_text())["clips"]]
     with Page(browser) as page:

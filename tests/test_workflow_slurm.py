@@ -33,7 +33,7 @@ CANCELLED_RULE = "train_recondreamer"  # the quick DAG's longest jobs (about 9 C
 CANCEL_AFTER_S = 5  # running time before the cancel: past the job's two workflow parses, inside its command
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # session: checked before the session's quick run is built, so a missing cluster fails at once
 def slurm_cluster():
     """The running test cluster's folder and the environment that points SLURM's commands at it."""
     where = f"{CLUSTER_DIR} ($RECONDREAMER_SLURM_DIR)"
@@ -117,7 +117,7 @@ def rule_of(comment: str) -> str:
 @pytest.mark.system
 @pytest.mark.timeout(3600)
 def test_quick_experiment_through_slurm_submits_every_job_retries_a_cancelled_one_and_gives_the_local_tables(
-    quick_experiment, slurm_cluster, tmp_path_factory
+    slurm_cluster, quick_experiment, tmp_path_factory
 ):
     cluster, env = slurm_cluster
     # The workflow and the quick weight set in a folder of their own, the same configs as the local run.
