@@ -6,9 +6,11 @@ GIF beside it (for slides and pages that take images only) and an HTML page play
 The Snakemake report shows PNG/JPEG/SVG images and HTML pages (in a frame) and offers every other
 file, videos included, only as a download. The page therefore embeds the video as a data URI: the
 report is one self-contained file, in which a relative link would not resolve. WebM with VP8,
-written by OpenCV's VideoWriter (its FFmpeg has no H.264 encoder), plays in every current browser;
-against the GIF it keeps the colours (no 256-colour palette) in fewer bytes
-(benchmarks/opencv_images.py).
+written by OpenCV's VideoWriter (its FFmpeg has no H.264 encoder), plays in every current browser,
+with controls (pause, seek, full screen) the GIF lacks. Against the GIF on a quick four-panel clip
+(benchmarks/opencv_images.py): 340 KB instead of 379 KB, at 35.8 dB PSNR instead of 39.7 (the
+codec's half-resolution colour planes soften the enlarged pixels' colour edges), written in about
+0.9 s instead of 0.1 s; VP9 halves the bytes again at 35.2 dB and three times VP8's time.
 """
 
 from __future__ import annotations
