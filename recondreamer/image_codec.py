@@ -2,9 +2,9 @@
 
 OpenCV against Pillow on the project's frames (``python benchmarks/opencv_images.py``): the same
 pixels, JPEG decoding in about half the time (240x160 and 1920x1280), PNG decoding of 240x160
-frames in 0.8 of it and PNG encoding in 0.7-0.8; only the decoding of 1920x1280 PNGs, which the
-project does not write, is slower. OpenCV holds channels in BGR order; these functions take and
-give RGB.
+frames in 0.8 of it and PNG encoding in 0.7-0.8; only 1920x1280 PNGs decode slower (1.2-1.5x
+Pillow's time; the synthetic frames are at most 240x160, Waymo's are JPEGs). OpenCV holds
+channels in BGR order; these functions take and give RGB.
 """
 
 from __future__ import annotations
