@@ -20,9 +20,9 @@ import cv2
 import numpy as np
 
 from recondreamer.errors import ConversionError
+from recondreamer.image_codec import decode_rgb, encode_rgb
 from recondreamer.scene.cameras import project_points, world_to_camera
 
-JPEG_QUALITY = 95  # the undistorted images are re-encoded (the originals are JPEGs too)
 # undistortPoints inverts the distortion by fixed-point iteration, by default 5 steps without a
 # convergence check (up to 5e-4 px off inside the FRONT image); these criteria iterate to convergence.
 _POINT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
@@ -63,17 +63,17 @@ class Undistortion:
         return cv2.remap(image, self.map_x, self.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
     def jpeg(self, data: bytes, where: str) -> bytes:
-        """A recorded JPEG undistorted and encoded again as JPEG (colour channels stay as stored);
-        the bytes themselves when the camera has no distortion."""
+        """A recorded JPEG undistorted and encoded again as JPEG (``image_codec``); the bytes
+        themselves when the camera has no distortion."""
         if self.is_identity:
             return data
-        decoded = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        decoded = decode_rgb(data)
         if decoded is None:
             raise ConversionError(f"{where}: camera image cannot be decoded as JPEG")
-        ok, encoded = cv2.imencode(".jpg", self.image(decoded), [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-        if not ok:
-            raise ConversionError(f"{where}: the undistorted camera image could not be encoded")
-        return encoded.tobytes()
+        try:
+            return encode_rgb(self.image(decoded), "jpg")
+        except ValueError as error:
+            raise ConversionError(f"{where}: the undistorted camera image could not be encoded ({error})") from error
 
     def points(self, uv: np.ndarray) -> np.ndarray:  # (N,2) recorded pixels -> (N,2) undistorted pixels
         """Where recorded pixel positions lie in the undistorted image (the inverse of the remap)."""
