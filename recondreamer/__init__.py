@@ -6,9 +6,11 @@ Sub-packages, one job each:
 - ``sources.synthetic`` / ``sources.waymo``: the two scene sources.
 - ``splat``: the differentiable Gaussian rasterizer (reference, fast CPU kernel, gsplat).
 - ``recon``: Gaussian scene models and their trainer.
-- ``restorer``: autoencoder, diffusion world models, DriveRestorer.
-- ``evaluation``: NTA-IoU, NTL-IoU, FID, PSNR/SSIM against true novel views, preference study.
-- ``report``: tables, plots and the study page.
+- ``generative``: autoencoder, diffusion world models, DriveRestorer, DriveDreamer4D's generation.
+- ``methods``: ReconDreamer's loop (PDUS) and DriveDreamer4D on top of a reconstruction.
+- ``evaluation``: NTA-IoU, NTL-IoU, FID/KID, PSNR/SSIM against true novel views, the evaluation models.
+- ``foundation``: the weight set of models trained once, its manifest and gates.
+- ``report``: tables, findings, plots, clips and the study page.
 """
 
 import os

@@ -53,7 +53,7 @@ def shift_name(offset: float) -> str:
 
 
 class ProgressiveDataUpdate:
-    """Trainer callback running Algorithm 1 with a DriveRestorer (``restorer.inference`` model).
+    """Trainer callback running Algorithm 1 with a DriveRestorer (``generative.inference.load_restorer``).
 
     ``restorer`` may instead be a ``TrueViewRenderer`` (synthetic scenes only): each update then
     trains on the true views of the shifted trajectory, the upper bound of any restorer.

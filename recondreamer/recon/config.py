@@ -105,7 +105,8 @@ class DensifyConfig:
 
 @dataclass
 class LossConfig:
-    """Loss weights (PROTOCOLS.md section 5) and the depth-loss mask."""
+    """Loss weights and the depth-loss mask. The weights are the public defaults of drivestudio and
+    Street Gaussians: RGB 0.8, SSIM 0.2, LiDAR depth in their 0.01-0.1 range, sky opacity 0.05."""
 
     rgb: float = 0.8
     ssim: float = 0.2

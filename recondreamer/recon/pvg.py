@@ -53,10 +53,6 @@ class PVGModel(GaussianSceneModel):
             "opacities": self.gaussians.opacities() * decay,
         }
 
-    def staticness(self) -> torch.Tensor:  # (N,)
-        """beta / l: PVG's static/dynamic score (large = static)."""
-        return torch.exp(self.gaussians.params["log_lifespan"]) / self.net.pvg_cycle
-
     @classmethod
     def initial_state(
         cls,

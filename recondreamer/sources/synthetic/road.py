@@ -131,10 +131,6 @@ class RoadLayout:
         d = np.asarray(d, dtype=np.float64)
         return np.where((d > self.curb_right) & (d < self.curb_left), 0.0, self.curb_height)
 
-    def on_driving_lanes(self, d: np.ndarray) -> np.ndarray:  # bool: between the outer edge lines
-        d = np.asarray(d, dtype=np.float64)
-        return (d > -1.5 * self.lane_width) & (d < self.curb_left - self.shoulder_width)
-
 
 def sample_layout(rng: np.random.Generator) -> RoadLayout:
     """A random road cross-section and curvature (straight in about a third of the seeds)."""
