@@ -73,13 +73,25 @@ def save_model(path: str | Path, kind: str, module: torch.nn.Module, training: d
         torch.save(payload, tmp)
 
 
-def _read_checkpoint(path: Path, missing_hint: str):
+def read_torch_file(path: Path, missing_hint: str, unreadable: str = "not a readable torch checkpoint"):
+    """The payload of a torch file, read without running code (``weights_only``): a CheckpointError
+    naming ``path`` with ``missing_hint`` when it is absent, with ``unreadable`` and the reason when
+    torch refuses it (corrupt, foreign, or a pickle that would build more than tensors and containers)."""
     if not path.is_file():
         raise CheckpointError(f"{path}: {missing_hint}")
     try:
         return torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many types for corrupt or foreign files
-        raise CheckpointError(f"{path}: not a readable torch checkpoint ({error})") from None
+    except Exception as error:  # torch raises many types for corrupt, foreign or unsafe files
+        raise CheckpointError(f"{path}: {unreadable} ({_refusal_reason(error)})") from None
+
+
+def _refusal_reason(error: Exception) -> str:
+    """The line of a torch.load error that says why (weights-only refusals bury it mid-message)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    for line in lines:
+        if "WeightsUnpickler error:" in line:
+            return line.split("WeightsUnpickler error:", 1)[1].split(" Please use", 1)[0].strip()
+    return f"{type(error).__name__}: {lines[0] if lines else error!r}"
 
 
 def _model_from_payload(path: Path, payload, kind: str) -> LoadedModel:
@@ -104,7 +116,7 @@ def _model_from_payload(path: Path, payload, kind: str) -> LoadedModel:
 def load_model(path: str | Path, kind: str) -> LoadedModel:
     """Load an evaluation model file of the given kind; CheckpointError naming the file otherwise."""
     path = Path(path)
-    return _model_from_payload(path, _read_checkpoint(path, "evaluation model file not found (train it with 'recondreamer train-eval-models')"), kind)
+    return _model_from_payload(path, read_torch_file(path, "evaluation model file not found (train it with 'recondreamer train-eval-models')"), kind)
 
 
 def load_detector(path: str | Path) -> LoadedModel:
@@ -126,7 +138,7 @@ def load_fid_model(path: str | Path) -> LoadedModel:
     pytorch-fid InceptionV3 state_dict (``pt_inception-2015-12-05-6726825d.pth``), told apart
     by the Inception layer names."""
     path = Path(path)
-    payload = _read_checkpoint(
+    payload = read_torch_file(
         path, "FID feature model file not found (train it with 'recondreamer train-eval-models', or name a local copy of pytorch-fid's InceptionV3 weights)"
     )
     if isinstance(payload, dict) and INCEPTION_STATE_DICT_KEY in payload:

@@ -40,6 +40,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from recondreamer.errors import CheckpointError
+from recondreamer.evaluation.inference import read_torch_file
 
 INPUT_HEIGHT = 360  # test_image.py: cv2.resize(img, (640, 360)); DataSet.py: H_ = 360
 INPUT_WIDTH = 640  # test_image.py: cv2.resize(img, (640, 360)); DataSet.py: W_ = 640
@@ -451,15 +452,6 @@ class TwinLiteNet(nn.Module):
         return drivable, lane
 
 
-def _refusal_reason(error: Exception) -> str:
-    """The line of a torch.load error that says why (weights-only refusals bury it mid-message)."""
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    for line in lines:
-        if "WeightsUnpickler error:" in line:
-            return line.split("WeightsUnpickler error:", 1)[1].split(" Please use", 1)[0].strip()
-    return f"{type(error).__name__}: {lines[0] if lines else error!r}"
-
-
 def _state_dict_of(path: Path, payload) -> dict[str, torch.Tensor]:
     if not isinstance(payload, dict):
         raise CheckpointError(f"{path}: holds a {type(payload).__name__}, expected a TwinLiteNet state_dict (a dict of tensors)")
@@ -506,12 +498,8 @@ def load_twinlitenet(path: str | Path, device: torch.device | str = "cpu") -> Tw
     tensors and plain containers is refused, never run. Every refusal is a CheckpointError naming the file.
     """
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: TwinLiteNet weights file not found (a local copy of pretrained/best.pth of CAIC-AD/TwinLiteNet)")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # torch raises many types for foreign, corrupt or unsafe files
-        raise CheckpointError(f"{path}: not a torch weights file that loads without running code ({_refusal_reason(error)})") from None
+    payload = read_torch_file(path, "TwinLiteNet weights file not found (a local copy of pretrained/best.pth of CAIC-AD/TwinLiteNet)",
+                              "not a torch weights file that loads without running code")
     state = _state_dict_of(path, payload)
     check_twinlitenet_state(path, state)
     model = TwinLiteNet()
